@@ -1,0 +1,192 @@
+"""Physics that a real arm has and the static model leaves out.
+
+Used to make "real" data in which an effect is present but labelled nowhere: by
+``pimbs simulate --conceal`` and by the simulated boards of the mock bus. Each effect acts
+at the place it acts on a real robot:
+
+* on the **physics** of the arm (``link_mass``, ``elastic_stiffness``, ``routing``): the true
+  arm differs from the model in mass, stiffness or tendon path;
+* on the **pose** (``joint_offset``): the joint encoder's zero is off, so the controller
+  puts the arm at ``θ_cmd − δ`` while the encoder reports ``θ_cmd``;
+* on the **tension reading** (``tendon_friction``, ``tension_offset``, ``thermal_drift``):
+  the loadcell sits at the motor, so it reads the joint-side tension through capstan
+  friction ``f·exp(−a·μ)`` (``a`` the approach direction, +1 lengthening), with a bias, or
+  with a drift proportional to ``T − T_ref``.
+
+Specs are text, ``NAME[:PARAMS]``: ``tendon_friction:0.2``,
+``tension_offset:15,muscles=m1``, ``link_mass:1.4,link=forearm`` (mass scale),
+``joint_offset:0.05,joints=elbow_pitch``, ``thermal_drift:0.8`` (N/°C),
+``elastic_stiffness:0.6`` (K scale), ``routing:0.003`` (m, random via-point shifts; the
+nuisance a body schema learns, not a diagnosis target).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calibration.arm_model import ArmModel
+
+# Vocabulary shared with the diagnosis report; aliases accepted on the command line.
+EFFECT_NAMES = ("tendon_friction", "link_mass", "tension_offset", "thermal_drift",
+                "elastic_stiffness", "joint_offset", "routing")
+ALIASES = {"friction": "tendon_friction", "mass": "link_mass", "offset": "tension_offset",
+           "loadcell_offset": "tension_offset", "drift": "thermal_drift",
+           "stiffness": "elastic_stiffness", "encoder_offset": "joint_offset"}
+DEFAULT_MAGNITUDE = {"tendon_friction": 0.15, "link_mass": 1.3, "tension_offset": 15.0,
+                     "thermal_drift": 0.8, "elastic_stiffness": 0.6, "joint_offset": 0.04,
+                     "routing": 0.002}
+T_REF = 25.0  # °C at which loadcells are calibrated
+
+
+class EffectSpecError(ValueError):
+    """A ``--conceal`` spec that cannot be understood; the message says the accepted form."""
+
+
+@dataclass
+class Effect:
+    """One concealed effect with its parameters (all in SI units)."""
+
+    name: str
+    magnitude: float
+    muscles: tuple[str, ...] = ()  # empty: all muscles
+    joints: tuple[str, ...] = ()   # empty: the first joint (joint_offset)
+    link: str | None = None        # link_mass: None -> the last moving link
+    seed: int = 0                  # routing: which random shifts
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    # -- the three places an effect acts ------------------------------------------------
+    def physics(self, arm: ArmModel) -> ArmModel:
+        """The true arm: the model arm changed where this effect changes physics."""
+        if self.name == "link_mass":
+            return arm.with_link_mass(self.link or arm.moving_links[-1], self.magnitude)
+        if self.name == "elastic_stiffness":
+            scale = np.ones(arm.n_muscles)
+            scale[self._muscle_mask(arm)] = self.magnitude
+            return arm.with_stiffness(arm.K * scale)
+        if self.name == "routing":
+            rng = np.random.default_rng([self.seed, 77])
+            return arm.with_via_point_shifts(rng.normal(0.0, self.magnitude,
+                                                        arm.via_point_shape))
+        return arm
+
+    def true_pose(self, arm: ArmModel, theta_cmd: np.ndarray) -> np.ndarray:
+        """Where the arm really is when the (possibly offset) joint sensor says θ_cmd."""
+        if self.name != "joint_offset":
+            return theta_cmd
+        return theta_cmd - self.joint_offsets(arm)
+
+    def read_tension(self, arm: ArmModel, tension: np.ndarray, approach: np.ndarray,
+                     temperature: np.ndarray) -> np.ndarray:
+        """What the loadcells read given the joint-side tension (no noise added here)."""
+        mask = self._muscle_mask(arm)
+        out = np.array(tension, dtype=float, copy=True)
+        if self.name == "tendon_friction":
+            out[..., mask] *= np.exp(-np.asarray(approach, float)[..., mask] * self.magnitude)
+        elif self.name == "tension_offset":
+            out[..., mask] += self.magnitude
+        elif self.name == "thermal_drift":
+            out[..., mask] += self.magnitude * (np.asarray(temperature)[..., mask] - T_REF)
+        return out
+
+    # -- helpers ------------------------------------------------------------------------
+    def joint_offsets(self, arm: ArmModel) -> np.ndarray:
+        delta = np.zeros(arm.n_joints)
+        names = self.joints or (arm.joints[0],)
+        for name in names:
+            delta[_index(arm.joints, name, "joint")] = self.magnitude
+        return delta
+
+    def _muscle_mask(self, arm: ArmModel) -> np.ndarray:
+        mask = np.zeros(arm.n_muscles, dtype=bool)
+        if not self.muscles:
+            mask[:] = True
+        for name in self.muscles:
+            mask[_index(arm.muscles, name, "muscle")] = True
+        return mask
+
+    def describe(self) -> str:
+        parts = [f"{self.name}:{self.magnitude:g}"]
+        if self.muscles:
+            parts.append("muscles=" + "+".join(self.muscles))
+        if self.joints:
+            parts.append("joints=" + "+".join(self.joints))
+        if self.link:
+            parts.append(f"link={self.link}")
+        return ",".join(parts)
+
+
+def _index(names: list[str] | tuple[str, ...], name: str, what: str) -> int:
+    try:
+        return list(names).index(name)
+    except ValueError:
+        raise EffectSpecError(f"unknown {what} '{name}'; this robot has "
+                              f"{', '.join(names)}") from None
+
+
+def parse_effect(spec: str, seed: int = 0) -> Effect:
+    """Parse ``NAME[:MAGNITUDE][,key=value...]`` (``muscles``/``joints`` joined by ``+``)."""
+    name, _, params = spec.partition(":")
+    name = ALIASES.get(name.strip(), name.strip())
+    if name not in EFFECT_NAMES:
+        raise EffectSpecError(f"unknown effect '{name}' in '{spec}'; choose one of "
+                              f"{', '.join(EFFECT_NAMES)}")
+    effect = Effect(name=name, magnitude=DEFAULT_MAGNITUDE[name], seed=seed)
+    for i, item in enumerate(p for p in params.split(",") if p.strip()):
+        key, eq, value = item.partition("=")
+        try:
+            if not eq and i == 0:
+                effect.magnitude = float(key)
+            elif key in ("muscles", "muscle"):
+                effect.muscles = tuple(value.split("+"))
+            elif key in ("joints", "joint"):
+                effect.joints = tuple(value.split("+"))
+            elif key == "link":
+                effect.link = value
+            elif key in ("magnitude", "value", "mu", "scale", "offset", "coef"):
+                effect.magnitude = float(value)
+            else:
+                raise EffectSpecError(f"unknown parameter '{key}' in '{spec}'")
+        except ValueError as exc:
+            if isinstance(exc, EffectSpecError):
+                raise
+            raise EffectSpecError(f"'{item}' in '{spec}' is not a number; the form is "
+                                  f"NAME[:MAGNITUDE][,muscles=m0+m1][,joints=j][,link=l]"
+                                  ) from None
+    return effect
+
+
+@dataclass
+class World:
+    """The true arm a set of concealed effects makes of the model arm.
+
+    ``model`` is what the tools believe (it computes ``tau_gravity``); ``arm`` is the
+    physics the data obey.
+    """
+
+    model: ArmModel
+    effects: tuple[Effect, ...] = ()
+
+    def __post_init__(self) -> None:
+        arm = self.model
+        for effect in self.effects:
+            effect._muscle_mask(self.model)  # validate names early
+            if effect.name == "joint_offset":
+                effect.joint_offsets(self.model)
+            arm = effect.physics(arm)
+        self.arm = arm
+
+    def true_pose(self, theta_cmd: np.ndarray) -> np.ndarray:
+        theta = np.asarray(theta_cmd, dtype=float)
+        for effect in self.effects:
+            theta = effect.true_pose(self.model, theta)
+        return theta
+
+    def read_tension(self, tension: np.ndarray, approach: np.ndarray,
+                     temperature: np.ndarray) -> np.ndarray:
+        out = np.asarray(tension, dtype=float)
+        for effect in self.effects:
+            out = effect.read_tension(self.model, out, approach, temperature)
+        return out

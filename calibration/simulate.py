@@ -1,0 +1,114 @@
+"""The paper's simulated body-schema data set, and "real" data with a concealed effect.
+
+Per sample (Sec. III-A of the paper): θ uniform in the joint range; gravity torque and
+geometric lengths from the model; tensions from the QP ``min fᵀf s.t. −Gᵀf = τ, f ≥ f_min``
+with ``f_min = 0`` (AL-Map) or uniform in [10, 300] N per muscle (ATL-Map); lengths with the
+elastic stretch ``f = exp(KΔn) − 1``.
+
+Like a real collection, the recording also carries times, approach directions (the sign
+of each muscle's length change on the way from the previous pose), motor temperatures that
+rise with load (first-order thermal model) and sensor noise. With effects from
+:mod:`calibration.effects` the data obey the *true* arm while ``tau_gravity`` is still
+computed from the model, exactly as on hardware. Poses, f_min draws and noise come from
+separate seeded streams, so a concealed and a clean recording of one seed pair by
+``sample``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.arm_model import ArmModel, sample_poses
+from calibration.effects import Effect, World
+from calibration.recording import make_meta
+
+ATL_F_MIN = (10.0, 300.0)  # N, the paper's range for the ATL-Map
+START = np.datetime64("2026-01-01T09:00:00", "us")  # fixed, so files of one seed are equal
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Standard deviations of the simulated sensors (scaled together by ``scale``)."""
+
+    tension: float = 0.3       # N, loadcell
+    length: float = 5e-6       # m, motor encoder
+    theta: float = 2e-4        # rad, joint angle estimate
+    temperature: float = 0.1   # °C
+
+    def scaled(self, scale: float) -> SensorNoise:
+        return SensorNoise(self.tension * scale, self.length * scale, self.theta * scale,
+                           self.temperature * scale)
+
+
+@dataclass(frozen=True)
+class ThermalModel:
+    """Motor temperature: first order towards ambient + gain·tension."""
+
+    ambient: float = 25.0         # °C
+    gain: float = 0.06            # °C per N held
+    time_constant: float = 240.0  # s
+
+    def step(self, temp: np.ndarray, tension: np.ndarray, dt: float) -> np.ndarray:
+        a = np.exp(-dt / self.time_constant)
+        return self.ambient + (temp - self.ambient) * a + (1 - a) * self.gain * tension
+
+
+def approach_direction(previous: np.ndarray, current: np.ndarray,
+                       threshold: float = 1e-4) -> np.ndarray:
+    """+1 where a muscle lengthened into the pose, −1 where it shortened, 0 if still."""
+    delta = current - previous
+    return np.where(delta > threshold, 1, np.where(delta < -threshold, -1, 0)).astype(np.int8)
+
+
+def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0,
+             effects: tuple[Effect, ...] = (), noise: float = 1.0,
+             sample_period: float = 4.0,
+             start: np.datetime64 = START,
+             ) -> tuple[dict[str, np.ndarray], dict]:
+    """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording."""
+    if map_kind not in ("al", "atl"):
+        raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
+    pose_rng = np.random.default_rng([seed, 0])
+    fmin_rng = np.random.default_rng([seed, 1])
+    noise_rng = np.random.default_rng([seed, 2])
+    world = World(arm, tuple(effects))
+    sigma = SensorNoise().scaled(noise)
+    thermal = ThermalModel()
+
+    theta_cmd = sample_poses(arm.joint_range, n_samples, pose_rng)
+    n, m = arm.n_joints, arm.n_muscles
+    out = {k: np.zeros((n_samples, w)) for k, w in
+           (("theta", n), ("tension", m), ("length", m), ("temperature", m),
+            ("tau_gravity", n))}
+    approach = np.zeros((n_samples, m), dtype=np.int8)
+    prev_length = np.zeros(m)  # the arm starts at the home pose, unloaded
+    temp = np.full(m, thermal.ambient)
+    for i in range(n_samples):
+        f_min = (np.zeros(m) if map_kind == "al" else fmin_rng.uniform(*ATL_F_MIN, m))
+        theta_true = world.true_pose(theta_cmd[i])
+        tension = world.arm.tension_distribution(theta_true, f_min)
+        length = world.arm.length(theta_true, tension)
+        approach[i] = approach_direction(prev_length, length)
+        prev_length = length
+        temp = thermal.step(temp, tension, sample_period)
+        temperature = temp + noise_rng.normal(0, sigma.temperature, m)
+        reading = world.read_tension(tension, approach[i], temperature)
+        theta_meas = theta_cmd[i] + noise_rng.normal(0, sigma.theta, n)
+        out["theta"][i] = theta_meas
+        out["tension"][i] = reading + noise_rng.normal(0, sigma.tension, m)
+        out["length"][i] = length + noise_rng.normal(0, sigma.length, m)
+        out["temperature"][i] = temperature
+        out["tau_gravity"][i] = arm.gravity_torque(theta_meas)
+    jitter = noise_rng.uniform(0, 0.5, n_samples) if noise else np.zeros(n_samples)
+    times = start + ((np.arange(n_samples) * sample_period + jitter) * 1e6).astype(
+        "timedelta64[us]")
+    data = {"sample": np.arange(n_samples), "time": times, "theta_command": theta_cmd,
+            "approach": approach, **out}
+    meta = make_meta(arm.joints, arm.muscles, "simulation", robot=arm.robot.name,
+                     seed=seed, map=map_kind, generator="pimbs simulate",
+                     f_min=[0.0, 0.0] if map_kind == "al" else list(ATL_F_MIN),
+                     joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
+                     noise=noise, theta_source="simulation")
+    return data, meta

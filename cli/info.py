@@ -1,0 +1,67 @@
+"""`pimbs info FILE`: a short summary of any valid recording; a clean refusal otherwise."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from cli.common import user_errors
+
+
+def _range(values: np.ndarray) -> str:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return "—"
+    return f"{finite.min():.4g} … {finite.max():.4g}"
+
+
+def summary(path: Path) -> str:
+    """Human-readable summary of a recording (raises RecordingError if invalid)."""
+    from calibration.recording import read_recording
+
+    rec = read_recording(path)
+    t = rec.time
+    lines = [
+        f"{path}",
+        f"  robot    {rec.robot or '(not named)'}   source {rec.source or '(not given)'}   "
+        f"format {rec.meta['format']}",
+        f"  rows     {rec.n_rows}   samples {int(rec.sample[0]) if rec.n_rows else '-'}"
+        f"…{int(rec.sample[-1]) if rec.n_rows else '-'}",
+    ]
+    if rec.n_rows:
+        span = (t[-1] - t[0]).astype("timedelta64[ms]").astype(float) / 1e3
+        lines.append(f"  time     {t[0]} … {t[-1]} UTC ({span:.1f} s)")
+    lines.append(f"  joints   {rec.n_joints}: {', '.join(rec.joints)}")
+    lines.append(f"  muscles  {rec.n_muscles}: {', '.join(rec.muscles)}")
+    if rec.n_rows:
+        tau = rec.tau_gravity
+        missing = int(np.isnan(tau).all(axis=1).sum())
+        lines += [
+            f"  theta        [rad]  {_range(rec.theta)}",
+            f"  tension      [N]    {_range(rec.tension)}",
+            f"  length       [m]    {_range(rec.length)}",
+            f"  temperature  [°C]   {_range(rec.temperature)}",
+            f"  tau_gravity  [N·m]  {_range(tau)}"
+            + (f"   ({missing} rows without)" if missing else ""),
+        ]
+    if rec.extra_columns:
+        lines.append(f"  extra columns: {', '.join(rec.extra_columns)}")
+    other = sorted(k for k in rec.meta if k not in ("format", "robot", "joints", "muscles",
+                                                     "source"))
+    if other:
+        lines.append(f"  metadata: {', '.join(other)}")
+    return "\n".join(lines)
+
+
+@click.command("info")
+@click.argument("files", nargs=-1, required=True,
+                type=click.Path(dir_okay=False, path_type=Path))
+@user_errors
+def command(files: tuple[Path, ...]) -> None:
+    """Summarise recordings (robot, joints, muscles, rows, source, value ranges)."""
+    for i, path in enumerate(files):
+        if i:
+            click.echo()
+        click.echo(summary(path))

@@ -1,0 +1,41 @@
+"""`pimbs simulate`: the paper's simulated data, optionally with a concealed effect."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cli.common import robot_option, user_errors
+
+
+@click.command("simulate")
+@robot_option()
+@click.option("--samples", "-n", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--map", "map_kind", type=click.Choice(["al", "atl"]), default="atl",
+              show_default=True, help="al: f_min = 0; atl: f_min uniform in [10, 300] N")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
+              help="write a 'real' recording with this effect present but unlabelled: "
+                   "tendon_friction, link_mass, tension_offset, thermal_drift, "
+                   "elastic_stiffness, joint_offset, routing (repeatable), e.g. "
+                   "tendon_friction:0.2 or tension_offset:15,muscles=m1")
+@click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              help="sensor noise scale (0: exact data)")
+@user_errors
+def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
+            conceal: tuple[str, ...], noise: float) -> None:
+    """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
+    from calibration.arm_model import ArmModel
+    from calibration.effects import parse_effect
+    from calibration.recording import write_recording
+    from calibration.simulate import simulate
+
+    arm = ArmModel.load(robot)
+    effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
+    data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects, noise=noise)
+    write_recording(out, data, meta)
+    click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
+               f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
+               f"seed {seed})")
