@@ -1,0 +1,233 @@
+"""The shared arm model: muscle geometry, gravity, elasticity, tension QP and static equilibrium.
+
+One implementation serves simulation (``simulate.py``), the mock bus (``pimbs_hw.mock``),
+collection and learning, so all of them agree on the physics and its sign conventions
+(see docs/design.md): muscles produce joint torque ``-G^T f``, ``gravity_torque`` is the torque
+the muscles must supply, and the motor length is ``l = h_geom(theta) - dn(f)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import quadprog
+
+from calibration.description import RobotDescription, load_robot
+
+
+class InfeasiblePoseError(RuntimeError):
+    """No non-negative tensions above the floor can hold the arm in the requested pose."""
+
+
+@dataclass
+class Equilibrium:
+    """Result of ``ArmModel.equilibrium``.
+
+    ``length`` is what each motor encoder reads: the commanded length for length-mode muscles
+    (also when slack, where it exceeds the geometric length), ``h_geom - dn(f_cmd)`` for
+    tension-mode muscles. ``residual`` is ``||g(theta) + G^T f||``; it is non-zero only where a
+    joint rests on its URDF limit.
+    """
+
+    theta: np.ndarray  # (N,)
+    tension: np.ndarray  # (M,)
+    length: np.ndarray  # (M,)
+    converged: bool
+    residual: float
+
+
+def sample_poses(joint_range: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``n`` poses uniformly from ``joint_range`` (N, 2); returns (n, N)."""
+    joint_range = np.asarray(joint_range, dtype=np.float64)
+    return rng.uniform(joint_range[:, 0], joint_range[:, 1], size=(n, len(joint_range)))
+
+
+def _batched(fn, theta, n_joints: int) -> np.ndarray:
+    """Apply a single-pose function to (N,) or (B, N) input, stacking along the batch axis."""
+    theta = np.asarray(theta, dtype=np.float64)
+    if theta.shape == (n_joints,):
+        return fn(theta)
+    if theta.ndim != 2 or theta.shape[1] != n_joints:
+        raise ValueError(f"theta must have shape ({n_joints},) or (B, {n_joints}), "
+                         f"got {theta.shape}")
+    return np.stack([fn(t) for t in theta]) if len(theta) else np.empty((0,))
+
+
+class ArmModel:
+    """Rigid-body + muscle model of one robot description (numpy float64 throughout)."""
+
+    def __init__(self, robot: RobotDescription) -> None:
+        self.robot = robot
+        self.joints = robot.joints
+        self.muscles = tuple(m.name for m in robot.muscles)
+        self.n_joints = len(robot.joints)
+        self.n_muscles = len(robot.muscles)
+        self.joint_range = robot.joint_range.copy()
+        self.K = np.array([m.K for m in robot.muscles], dtype=np.float64)
+        self.f_max = np.array([m.f_max for m in robot.muscles], dtype=np.float64)
+        self._model = pin.buildModelFromUrdf(str(robot.urdf_path))
+        self._data = self._model.createData()
+        self._build_index()
+        self.joint_limits = np.stack([self._model.lowerPositionLimit[self._iq],
+                                      self._model.upperPositionLimit[self._iq]], axis=1)
+        self._h0 = self._length_jacobian(np.zeros(self.n_joints), jacobian=False)[0]
+
+    @classmethod
+    def load(cls, name_or_path: str | Path) -> ArmModel:
+        """Model of a built-in robot name or a ``.muscles.yaml`` path."""
+        return cls(load_robot(name_or_path))
+
+    def _build_index(self) -> None:
+        """Precompute via points in their parent-joint frames and the segment -> muscle map."""
+        model = self._model
+        jids = [model.getJointId(j) for j in self.joints]
+        self._iq = np.array([model.joints[j].idx_q for j in jids])
+        self._iv = np.array([model.joints[j].idx_v for j in jids])
+        parents, points, owner = [], [], []
+        for i, muscle in enumerate(self.robot.muscles):
+            for via in muscle.path:
+                frame = model.frames[model.getBodyId(via.link)]
+                parents.append(frame.parentJoint)
+                points.append(frame.placement.act(via.point))
+                owner.append(i)
+        self._joint_ids = sorted(set(parents))
+        self._via_joint = np.array([self._joint_ids.index(p) for p in parents])
+        self._via_local = np.array(points, dtype=np.float64)  # (V, 3) in parent-joint frame
+        owner = np.array(owner)
+        # Segment k joins via point k and k+1 of the same muscle.
+        seg_a = np.flatnonzero(owner[:-1] == owner[1:])
+        self._seg_a, self._seg_b = seg_a, seg_a + 1
+        self._seg_muscle = np.zeros((self.n_muscles, len(seg_a)))
+        self._seg_muscle[owner[seg_a], np.arange(len(seg_a))] = 1.0
+
+    def _q(self, theta: np.ndarray) -> np.ndarray:
+        q = pin.neutral(self._model)
+        q[self._iq] = theta
+        return q
+
+    def _length_jacobian(self, theta: np.ndarray, jacobian: bool = True
+                         ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Absolute path lengths (M,) and, optionally, their analytic Jacobian (M, N).
+
+        The Jacobian of a via point p on a body is J_lin + omega x p with the joint Jacobian
+        taken in the WORLD frame; a segment's length changes by u^T (J_b - J_a).
+        """
+        model, data = self._model, self._data
+        q = self._q(theta)
+        if jacobian:
+            pin.computeJointJacobians(model, data, q)
+        else:
+            pin.forwardKinematics(model, data, q)
+        rot = np.array([data.oMi[j].rotation for j in self._joint_ids])
+        trans = np.array([data.oMi[j].translation for j in self._joint_ids])
+        r = rot[self._via_joint]
+        p = np.einsum("vij,vj->vi", r, self._via_local) + trans[self._via_joint]
+        d = p[self._seg_b] - p[self._seg_a]
+        seg_len = np.linalg.norm(d, axis=1)
+        h = self._seg_muscle @ seg_len
+        if not jacobian:
+            return h, None
+        jac = np.array([pin.getJointJacobian(model, data, j, pin.ReferenceFrame.WORLD)
+                        for j in self._joint_ids])[:, :, self._iv]  # (U, 6, N)
+        jv = jac[self._via_joint]
+        jp = jv[:, :3, :] + np.cross(jv[:, 3:, :], p[:, :, None], axis=1)  # (V, 3, N)
+        u = d / seg_len[:, None]
+        dseg = np.einsum("si,sin->sn", u, jp[self._seg_b] - jp[self._seg_a])
+        return h, self._seg_muscle @ dseg
+
+    # ----------------------------------------------------------------- geometry and gravity
+    def h_geom(self, theta) -> np.ndarray:
+        """Geometric muscle length relative to theta = 0: (M,) or (B, M); h_geom(0) = 0."""
+        return _batched(lambda t: self._length_jacobian(t, jacobian=False)[0] - self._h0,
+                        theta, self.n_joints)
+
+    def muscle_jacobian(self, theta) -> np.ndarray:
+        """Analytic G = dh_geom/dtheta: (M, N) or (B, M, N)."""
+        return _batched(lambda t: self._length_jacobian(t)[1], theta, self.n_joints)
+
+    def gravity_torque(self, theta) -> np.ndarray:
+        """Pinocchio's generalized gravity g(theta): the torque the muscles must supply."""
+        return _batched(self._gravity, theta, self.n_joints)
+
+    def _gravity(self, theta: np.ndarray) -> np.ndarray:
+        g = pin.computeGeneralizedGravity(self._model, self._data, self._q(theta))
+        return np.array(g)[self._iv]
+
+    def _gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
+        dg = pin.computeGeneralizedGravityDerivatives(self._model, self._data, self._q(theta))
+        return np.array(dg)[np.ix_(self._iv, self._iv)]
+
+    def potential_energy(self, theta) -> float:
+        """Gravity potential energy (J) of a single pose; its gradient is ``gravity_torque``."""
+        theta = np.asarray(theta, dtype=np.float64)
+        return float(pin.computePotentialEnergy(self._model, self._data, self._q(theta)))
+
+    # ------------------------------------------------------------------------- elasticity
+    def stretch(self, tension) -> np.ndarray:
+        """Stretch dn = log1p(f)/K of the elastic element (m); negative tension reads 0."""
+        return np.log1p(np.maximum(np.asarray(tension, dtype=np.float64), 0.0)) / self.K
+
+    def tension_from_stretch(self, dn) -> np.ndarray:
+        """Tension f = expm1(K max(dn, 0)): a slack wire (dn <= 0) pulls nothing."""
+        return np.expm1(self.K * np.maximum(np.asarray(dn, dtype=np.float64), 0.0))
+
+    def length(self, theta, tension) -> np.ndarray:
+        """Motor-encoder length l = h_geom(theta) - dn(f) (physical sign, see design.md)."""
+        return self.h_geom(theta) - self.stretch(tension)
+
+    # -------------------------------------------------------------------------- statics
+    def tension_distribution(self, theta, f_min, W=None) -> np.ndarray:
+        """Minimum-effort tensions holding ``theta``: min f^T W f s.t. -G^T f = g, f >= f_min.
+
+        Args:
+            theta: (N,) or (B, N) pose(s).
+            f_min: tension floor, scalar, (M,), or (B, M) for a batch (per-sample scalars:
+                pass ``f_min[:, None]``).
+            W: (M, M) positive-definite weight, identity if None.
+        Returns:
+            (M,) or (B, M) tensions in N.
+        Raises:
+            InfeasiblePoseError: the muscles cannot hold the pose with f >= f_min.
+        """
+        theta = np.asarray(theta, dtype=np.float64)
+        weight = np.eye(self.n_muscles) if W is None else np.asarray(W, dtype=np.float64)
+        if theta.ndim == 1:
+            floor = np.broadcast_to(np.asarray(f_min, dtype=np.float64), (self.n_muscles,))
+            return self._qp(theta, floor, weight)
+        floor = np.broadcast_to(np.asarray(f_min, dtype=np.float64),
+                                (len(theta), self.n_muscles))
+        return np.stack([self._qp(t, fl, weight) for t, fl in zip(theta, floor, strict=True)])
+
+    def _qp(self, theta: np.ndarray, f_min: np.ndarray, weight: np.ndarray) -> np.ndarray:
+        G = self._length_jacobian(theta)[1]
+        g = self._gravity(theta)
+        # quadprog: min 1/2 x^T P x - a^T x  s.t.  C^T x >= b, the first meq rows as equalities.
+        C = np.hstack([-G, np.eye(self.n_muscles)])
+        b = np.concatenate([g, f_min])
+        try:
+            f = quadprog.solve_qp(2.0 * weight, np.zeros(self.n_muscles), C, b,
+                                  meq=self.n_joints)[0]
+        except ValueError as exc:
+            raise InfeasiblePoseError(
+                f"{self.robot.name}: no tensions >= f_min hold theta={np.round(theta, 4)} "
+                f"({self.joints}) against gravity g={np.round(g, 4)} N*m ({exc}); the pose "
+                "is outside the muscles' reach, lower f_min or check the muscle geometry"
+            ) from exc
+        return f
+
+    def equilibrium(self, mode, command, theta0=None) -> Equilibrium:
+        """Static pose reached when each muscle is commanded a motor length or a tension.
+
+        Args:
+            mode: (M,) of "length" | "tension" (a single string applies to all muscles).
+            command: (M,) motor length l_cmd (m) for length mode, tension f_cmd (N) otherwise.
+            theta0: (N,) start pose; pass the previous pose for speed (the mock bus does).
+        Returns:
+            Equilibrium minimising gravity + elastic potential within the URDF limits.
+        """
+        from calibration.statics import solve_equilibrium  # solver lives in its own module
+
+        return solve_equilibrium(self, mode, command, theta0)

@@ -1,0 +1,142 @@
+"""Static forward problem: the pose an arm settles into under muscle length/tension commands.
+
+The arm settles where gravity potential + elastic potentials (+ f_cmd * h_geom for
+tension-controlled muscles, whose motor keeps the tension constant) is minimal within the URDF
+limits. With K = 1000 the elastic terms are exponentially stiff, so a first-order method
+crawls; we use projected Newton with an exact Gauss-Newton elastic Hessian, pinocchio's
+gravity derivative, a finite-difference curvature term for the wire paths, and a backtracking
+line search on the energy. Warm-started from the previous pose it converges in a few steps.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from calibration.arm_model import ArmModel, Equilibrium
+
+_EXP_CAP = 60.0  # cap K*dn so far-off trial points give a huge but finite energy
+_FD_STEP = 1e-6  # rad, for the wire-path curvature term of the Hessian
+
+
+class _Problem:
+    """Energy, gradient and Hessian of one equilibrium problem (fixed commands)."""
+
+    def __init__(self, arm: ArmModel, is_length: np.ndarray, command: np.ndarray) -> None:
+        self.arm, self.is_length, self.command = arm, is_length, command
+        self.K = arm.K
+
+    def tension(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tensions (M,) and stretch (M,) at geometric length h; tension muscles keep f_cmd."""
+        dn = np.where(self.is_length, h - self.command, 0.0)
+        kdn = np.minimum(self.K * np.maximum(dn, 0.0), _EXP_CAP)
+        return np.where(self.is_length, np.expm1(kdn), self.command), dn
+
+    def energy(self, theta: np.ndarray) -> float:
+        h = self.arm._length_jacobian(theta, jacobian=False)[0] - self.arm._h0
+        f, dn = self.tension(h)
+        # P(dn) = expm1(K dn)/K - dn for dn > 0: its derivative is the tension f.
+        elastic = np.where(self.is_length & (dn > 0), f / self.K - np.maximum(dn, 0.0), 0.0)
+        const = np.where(self.is_length, 0.0, self.command * h)
+        return self.arm.potential_energy(theta) + float(elastic.sum() + const.sum())
+
+    def gradient(self, theta: np.ndarray):
+        """Gradient g + G^T f, plus the pieces the Hessian and the result need."""
+        h, G = self.arm._length_jacobian(theta)
+        h = h - self.arm._h0
+        f, dn = self.tension(h)
+        g = self.arm._gravity(theta)
+        return g + G.T @ f, g, G, f, h, dn
+
+    def hessian(self, theta: np.ndarray, G: np.ndarray, f: np.ndarray, dn: np.ndarray
+                ) -> np.ndarray:
+        stiff = np.where(self.is_length & (dn > 0), self.K * (f + 1.0), 0.0)
+        H = self.arm._gravity_derivative(theta) + G.T @ (stiff[:, None] * G)
+        # sum_i f_i d2h_i/dtheta2 by forward differences of G^T f at fixed f.
+        base = G.T @ f
+        for j in range(len(theta)):
+            step = theta.copy()
+            step[j] += _FD_STEP
+            H[:, j] += (self.arm._length_jacobian(step)[1].T @ f - base) / _FD_STEP
+        return 0.5 * (H + H.T)
+
+
+def _mode_mask(mode, n_muscles: int) -> np.ndarray:
+    modes = np.broadcast_to(np.asarray(mode), (n_muscles,))
+    bad = sorted(set(modes.tolist()) - {"length", "tension"})
+    if bad:
+        raise ValueError(f"mode must be 'length' or 'tension' per muscle, got {bad}")
+    return modes == "length"
+
+
+def _geometric_start(problem: _Problem, theta: np.ndarray, lo, hi) -> np.ndarray:
+    """Cold start: damped Gauss-Newton fit of h_geom to the commanded lengths.
+
+    At equilibrium the stretches are millimetres, so this lands where the exponential
+    springs are mild and Newton on the energy converges quickly.
+    """
+    sel = problem.is_length
+    if not sel.any():
+        return theta
+    for _ in range(8):
+        h, G = problem.arm._length_jacobian(theta)
+        r = (h - problem.arm._h0 - problem.command)[sel]
+        J = G[sel]
+        step = -np.linalg.solve(J.T @ J + 1e-6 * np.eye(len(theta)), J.T @ r)
+        theta = np.clip(theta + step, lo, hi)
+        if np.linalg.norm(step) < 1e-9:
+            break
+    return theta
+
+
+def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: int = 100,
+                      atol: float = 1e-10) -> Equilibrium:
+    """Projected-Newton minimisation of the static energy; see ``ArmModel.equilibrium``."""
+    from calibration.arm_model import Equilibrium
+
+    is_length = _mode_mask(mode, arm.n_muscles)
+    command = np.asarray(command, dtype=np.float64)
+    if command.shape != (arm.n_muscles,) or not np.all(np.isfinite(command)):
+        raise ValueError(f"command must be {arm.n_muscles} finite values, got {command!r}")
+    lo, hi = arm.joint_limits[:, 0], arm.joint_limits[:, 1]
+    problem = _Problem(arm, is_length, command)
+    if theta0 is None:
+        theta = _geometric_start(problem, np.clip(np.zeros(arm.n_joints), lo, hi), lo, hi)
+    else:
+        theta = np.clip(np.asarray(theta0, dtype=np.float64), lo, hi)
+
+    converged = False
+    energy = problem.energy(theta)
+    for _ in range(max_iter):
+        grad, g, G, f, h, dn = problem.gradient(theta)
+        free = ~(((theta <= lo) & (grad > 0)) | ((theta >= hi) & (grad < 0)))
+        scale = np.linalg.norm(g) + np.abs(G).T @ np.abs(f)
+        if np.linalg.norm(grad[free]) <= atol + 1e-12 * np.max(scale):
+            converged = True
+            break
+        H = problem.hessian(theta, G, f, dn)[np.ix_(free, free)]
+        w, V = np.linalg.eigh(H)
+        w = np.maximum(np.abs(w), 1e-9 * max(np.abs(w).max(), 1e-9))  # saddle-free Newton
+        step = np.zeros_like(theta)
+        step[free] = -V @ ((V.T @ grad[free]) / w)
+        alpha = 1.0
+        while True:
+            trial = np.clip(theta + alpha * step, lo, hi)
+            e_trial = problem.energy(trial)
+            # Armijo, or (near the optimum) a change lost in floating-point noise.
+            if (e_trial <= energy + 1e-4 * grad @ (trial - theta)
+                    or abs(e_trial - energy) <= 1e-13 * (1.0 + abs(energy))):
+                break
+            alpha *= 0.5
+            if alpha < 1e-10:
+                break
+        if np.array_equal(trial, theta):
+            break
+        theta, energy = trial, e_trial
+
+    grad, g, G, f, h, dn = problem.gradient(theta)
+    length = np.where(is_length, command, h - arm.stretch(f))
+    return Equilibrium(theta=theta, tension=f, length=length, converged=converged,
+                       residual=float(np.linalg.norm(grad)))
