@@ -22,10 +22,12 @@ nuisance a body schema learns, not a diagnosis target).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from calibration.arm_model import ArmModel
 
@@ -61,15 +63,17 @@ class Effect:
     def physics(self, arm: ArmModel) -> ArmModel:
         """The true arm: the model arm changed where this effect changes physics."""
         if self.name == "link_mass":
-            return arm.with_link_mass(self.link or arm.moving_links[-1], self.magnitude)
+            return _with_link_mass(arm, self.link or _last_link(arm), self.magnitude)
         if self.name == "elastic_stiffness":
             scale = np.ones(arm.n_muscles)
             scale[self._muscle_mask(arm)] = self.magnitude
-            return arm.with_stiffness(arm.K * scale)
+            true_arm = copy.copy(arm)
+            true_arm.K = arm.K * scale
+            return true_arm
         if self.name == "routing":
             rng = np.random.default_rng([self.seed, 77])
-            return arm.with_via_point_shifts(rng.normal(0.0, self.magnitude,
-                                                        arm.via_point_shape))
+            return _with_via_point_shifts(arm, rng.normal(0.0, self.magnitude,
+                                                          arm._via_local.shape))
         return arm
 
     def true_pose(self, arm: ArmModel, theta_cmd: np.ndarray) -> np.ndarray:
@@ -116,6 +120,44 @@ class Effect:
         if self.link:
             parts.append(f"link={self.link}")
         return ",".join(parts)
+
+
+def _last_link(arm: ArmModel) -> str:
+    """The link carried by the last actuated joint (the forearm, hand...)."""
+    model = arm._model
+    last = model.getJointId(arm.joints[-1])
+    for frame in model.frames:
+        if frame.type == pin.FrameType.BODY and frame.parentJoint == last:
+            return frame.name
+    raise EffectSpecError(f"{arm.robot.name}: no link on joint {arm.joints[-1]}")
+
+
+def _with_link_mass(arm: ArmModel, link: str, scale: float) -> ArmModel:
+    """Copy of ``arm`` whose ``link`` weighs ``scale`` times as much (same centre of mass).
+
+    Pinocchio merges links fixed to one joint; the scale applies to that merged body.
+    """
+    model = pin.Model(arm._model)
+    if not model.existBodyName(link):
+        raise EffectSpecError(f"unknown link '{link}' in {arm.robot.urdf_path.name}")
+    joint = model.frames[model.getBodyId(link)].parentJoint
+    body = model.inertias[joint]  # the link (and any links fixed to it), in the joint frame
+    if joint == 0 or body.mass <= 0:
+        raise EffectSpecError(f"link '{link}' has no mass on a moving joint in "
+                              f"{arm.robot.urdf_path.name}")
+    model.inertias[joint] = pin.Inertia(body.mass * scale, body.lever, body.inertia * scale)
+    true_arm = copy.copy(arm)
+    true_arm._model, true_arm._data = model, model.createData()
+    return true_arm
+
+
+def _with_via_point_shifts(arm: ArmModel, shifts: np.ndarray) -> ArmModel:
+    """Copy of ``arm`` whose via points sit ``shifts`` (V, 3) metres from the model's."""
+    true_arm = copy.copy(arm)
+    true_arm._data = arm._model.createData()
+    true_arm._via_local = arm._via_local + shifts
+    true_arm._h0 = true_arm._length_jacobian(np.zeros(arm.n_joints), jacobian=False)[0]
+    return true_arm
 
 
 def _index(names: list[str] | tuple[str, ...], name: str, what: str) -> int:
