@@ -1,0 +1,15 @@
+"""Exception roots of the hardware layer (safety stops live in ``pimbs_hw.safety``)."""
+
+from __future__ import annotations
+
+
+class HardwareError(RuntimeError):
+    """Anything the hardware layer reports; callers may catch this one type."""
+
+
+class PortError(HardwareError):
+    """A port could not be opened; the message names the port and what to do about it."""
+
+    def __init__(self, port: str, message: str) -> None:
+        self.port = port
+        super().__init__(message)

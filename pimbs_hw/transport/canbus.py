@@ -1,0 +1,116 @@
+"""CAN transport over python-can: any interface python-can supports.
+
+Port strings (``--port``):
+  ``can0``, ``vcan1``          socketcan channel
+  ``virtual`` / ``virtual:NAME``  python-can in-process virtual bus (the simulated arm)
+  ``IFACE:CHANNEL[@BITRATE]``  ``pcan:PCAN_USBBUS1``, ``kvaser:0``, ``slcan:/dev/ttyACM0@1000000``
+  ``IFACE``                    interface only, channel from python-can's config
+  ``default`` or ``""``        everything from python-can's config file / ``CAN_*`` env vars
+Only what the port names is passed to ``can.Bus``, so ``can.util.load_config`` fills in the
+rest (bitrate, app name, ...) from ``~/.canrc``, ``can.ini`` or the environment.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import can
+
+from pimbs_hw.errors import PortError
+from pimbs_hw.safety import BusOff, LinkLost, SafetyStop
+from pimbs_hw.transport.base import Frame, QueuedTransport
+
+VIRTUAL_DEFAULT_CHANNEL = "pimbs"
+_HINT = "use --port virtual for the simulated arm"
+
+
+def parse_can_port(port: str) -> dict[str, Any]:
+    """``can.Bus`` keyword arguments named by a port string (see module docstring)."""
+    if port in ("", "default"):
+        return {}
+    if port == "virtual":
+        return {"interface": "virtual", "channel": VIRTUAL_DEFAULT_CHANNEL}
+    iface, sep, channel = port.partition(":")
+    if not sep:
+        return {"interface": port} if port in can.VALID_INTERFACES else {
+            "interface": "socketcan", "channel": port}
+    if iface not in can.VALID_INTERFACES:
+        raise PortError(port, f"unknown CAN interface {iface!r} in port {port!r}: use one of "
+                              f"{', '.join(sorted(can.VALID_INTERFACES))}; {_HINT}")
+    kwargs: dict[str, Any] = {"interface": iface}
+    head, at, rate = channel.rpartition("@")
+    if at and rate.isdigit():
+        channel, kwargs["bitrate"] = head, int(rate)
+    if channel:
+        kwargs["channel"] = channel
+    return kwargs
+
+
+def _open_hint(port: str, kwargs: dict[str, Any], exc: Exception) -> str:
+    if kwargs.get("interface") == "socketcan":
+        ch = kwargs.get("channel", port)
+        return (f"no CAN interface {ch!r} ({exc}): is the adapter plugged in and "
+                f"`sudo ip link set {ch} up type can bitrate 1000000` done? {_HINT}")
+    return (f"cannot open CAN port {port!r} (python-can {kwargs or 'config'}: {exc}): is the "
+            f"adapter plugged in and its driver installed, and is the channel right? {_HINT}")
+
+
+class _Listener(can.Listener):
+    """Runs in the Notifier thread: stamp and hand over, nothing else."""
+
+    def __init__(self, transport: CanTransport) -> None:
+        self._transport = transport
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._transport._deliver(Frame(msg.arbitration_id, bytes(msg.data), time.monotonic(),
+                                       msg.is_error_frame))
+    # no on_error: an exception kills the Notifier thread, which ``_alive`` reports
+
+
+class CanTransport(QueuedTransport):
+    """Frames over python-can, received by a ``can.Notifier`` thread."""
+
+    def __init__(self, port: str, *, corrupt_per_s: int = 3, **bus_kwargs: Any) -> None:
+        super().__init__(port or "default", corrupt_per_s)
+        kwargs = {**parse_can_port(port), **bus_kwargs}
+        try:
+            self.bus = can.Bus(**kwargs)
+        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
+            raise PortError(self.port, _open_hint(self.port, kwargs, exc)) from exc
+        self._notifier = can.Notifier(self.bus, [_Listener(self)], timeout=0.05)
+
+    def _alive(self) -> SafetyStop | None:
+        exc = self._notifier.exception
+        if exc is not None:
+            return LinkLost(f"CAN receive thread died: {exc!r}", port=self.port)
+        try:
+            state = self.bus.state
+        except NotImplementedError:
+            return None
+        if state is can.BusState.ERROR:
+            return BusOff("CAN controller reports bus-off; check wiring, termination and "
+                          "bitrate", port=self.port)
+        return None
+
+    def _send(self, msg: can.Message) -> None:
+        self.check()
+        try:
+            self.bus.send(msg, timeout=0.05)
+        except can.CanError as exc:
+            self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
+            raise self._fault from exc  # type: ignore[misc]
+
+    def send(self, arbitration_id: int, data: bytes) -> None:
+        self._send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+
+    def send_error(self, error_class: int) -> None:
+        self._send(can.Message(arbitration_id=error_class, is_error_frame=True,
+                               is_extended_id=False, dlc=0))
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self._notifier.stop(timeout=1.0)
+        self.bus.shutdown()
