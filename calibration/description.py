@@ -228,8 +228,9 @@ def _parse_muscles(raw: dict, model, joints: tuple[str, ...], path: Path
         for i, m in enumerate(muscles):
             value = getattr(m, key)
             if value in seen:
-                raise DescriptionError(path, f"muscles[{i}].{key}", f"{value!r} is also used by "
-                                       f"muscles[{seen[value]}]", f"Give each muscle a unique {key}")
+                raise DescriptionError(path, f"muscles[{i}].{key}",
+                                       f"{value!r} is also used by muscles[{seen[value]}]",
+                                       f"Give each muscle a unique {key}")
             seen[value] = i
     return tuple(muscles)
 
