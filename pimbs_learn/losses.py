@@ -1,0 +1,68 @@
+"""The paper's training losses, in physical units (m², N²·m²), shared by both trainers.
+
+L_basic = mean over samples AND muscles of (l_pred − l_data)²  [m²]
+L_const = mean over muscles of h(0, 0)²                          [m²]
+L_pinn  = mean over samples AND joints of (Gᵀf + τ)²            [N²·m²]
+L_train = L_basic + [L_const] + [α·L_pinn]
+
+Means (not sums) over muscles/joints make the numbers comparable between robots; the paper's
+α = 1e-5 assumes physical units, which is why the network scaling never leaks in here.
+Reported numbers are ×1e5 (``REPORT_SCALE``), as in the paper's tables.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+REPORT_SCALE = 1e5
+LOSS_NAMES = ("basic", "basic+const", "basic+pinn", "basic+const+pinn")
+DEFAULT_ALPHA = 1e-5
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Which terms L_train has, and the physics weight α."""
+
+    const: bool = True
+    pinn: bool = True
+    alpha: float = DEFAULT_ALPHA
+
+    @classmethod
+    def parse(cls, name: str, alpha: float = DEFAULT_ALPHA) -> LossConfig:
+        """'basic', 'basic+const', 'basic+pinn' or 'basic+const+pinn' (order-free)."""
+        terms = [t.strip().lower() for t in name.split("+") if t.strip()]
+        bad = sorted(set(terms) - {"basic", "const", "pinn"})
+        if bad or "basic" not in terms or len(set(terms)) != len(terms):
+            raise ValueError(f"loss '{name}' is not one of: {', '.join(LOSS_NAMES)}")
+        if alpha < 0:
+            raise ValueError(f"alpha must be ≥ 0, got {alpha}")
+        return cls(const="const" in terms, pinn="pinn" in terms, alpha=float(alpha))
+
+    @property
+    def name(self) -> str:
+        return "+".join(["basic"] + ["const"] * self.const + ["pinn"] * self.pinn)
+
+    @property
+    def const_weight(self) -> float:
+        return 1.0 if self.const else 0.0
+
+    @property
+    def pinn_weight(self) -> float:
+        return self.alpha if self.pinn else 0.0
+
+
+def basic_loss(l_pred: torch.Tensor, l_data: torch.Tensor) -> torch.Tensor:
+    """L_basic per run: mean over the last two axes (samples, muscles)."""
+    return ((l_pred - l_data) ** 2).mean(dim=(-2, -1))
+
+
+def const_loss(l_zero: torch.Tensor) -> torch.Tensor:
+    """L_const per run from h(0, 0), shape (..., M)."""
+    return (l_zero**2).mean(dim=-1)
+
+
+def pinn_loss(gtf: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """L_pinn per run: Gᵀf + τ should vanish in a static pose (τ = −Gᵀf)."""
+    return ((gtf + tau) ** 2).mean(dim=(-2, -1))

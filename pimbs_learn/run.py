@@ -1,0 +1,109 @@
+"""What one training run is (data, loss, seed, options) and what it produces.
+
+Shared by the fast trainer and the reference so that both consume and report exactly the
+same things, and the benchmark can compare them field by field.
+
+Selection rule (paper): the model kept is the one of the epoch with the lowest *training*
+L_basic (first such epoch on ties); its L_eval is the reported ``eval_loss``. "Epoch e" means
+the weights before the e-th optimiser step, i.e. the weights that produced that epoch's loss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from pimbs_learn.data import LearnError, Samples
+from pimbs_learn.losses import REPORT_SCALE, LossConfig
+from pimbs_learn.model import HIDDEN, Scaling
+
+Progress = Callable[[int], None]  # called with the number of epochs done
+
+
+@dataclass(frozen=True)
+class Run:
+    """One training run: its training/evaluation samples, loss, seed and map type."""
+
+    train: Samples
+    eval: Samples
+    loss: LossConfig = LossConfig()
+    seed: int = 0
+    atl: bool = True
+
+    @property
+    def map_name(self) -> str:
+        return "atl" if self.atl else "al"
+
+    def check(self) -> None:
+        """Refuse runs that cannot train meaningfully, before spending any time."""
+        if self.train.n_samples < 1 or self.eval.n_samples < 1:
+            raise LearnError("training and evaluation sets must each hold at least one sample")
+        if self.train.joints != self.eval.joints or self.train.muscles != self.eval.muscles:
+            raise LearnError("training and evaluation samples come from different bodies")
+        if self.loss.pinn and not np.isfinite(self.train.tau).all():
+            raise LearnError("the PINN loss needs tau_gravity for every training sample")
+
+    def scaling(self) -> Scaling:
+        t = self.train
+        return Scaling.from_data(t.theta, t.tension if self.atl else None, t.length)
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    epochs: int = 20000
+    lr: float = 1e-3
+    hidden: int = HIDDEN
+    device: str = "cpu"
+    curve_every: int = 0  # record L_eval every k epochs for plots (0: no curve)
+    dtype: torch.dtype = torch.float32
+
+    def torch_device(self) -> torch.device:
+        if self.epochs < 1:
+            raise LearnError(f"--epochs must be ≥ 1, got {self.epochs}")
+        if self.lr <= 0:
+            raise LearnError(f"--lr must be > 0, got {self.lr}")
+        dev = torch.device(self.device)
+        if dev.type == "cuda" and not torch.cuda.is_available():
+            raise LearnError("--device cuda asked for, but torch sees no CUDA device")
+        return dev
+
+
+@dataclass
+class TrainResult:
+    """Outcome of one run. Losses are raw (m²); ``metrics()`` reports them ×1e5."""
+
+    run: Run
+    params: dict[str, np.ndarray]  # weights of the selected (best) epoch, float32
+    scaling: Scaling
+    best_epoch: int
+    train_loss: float  # L_basic on the training set at best_epoch
+    eval_loss: float  # L_eval at best_epoch
+    epochs: int
+    seconds: float
+    curve_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    curve_eval: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def metrics(self) -> dict[str, Any]:
+        return {
+            "eval_loss": self.eval_loss * REPORT_SCALE,
+            "train_loss": self.train_loss * REPORT_SCALE,
+            "loss_scale": REPORT_SCALE,
+            "loss_definition": "mean over samples and muscles of (l_pred - l_data)^2 [m^2]",
+            "best_epoch": self.best_epoch,
+            "epochs": self.epochs,
+            "seconds": self.seconds,
+            "n_train": self.run.train.n_samples,
+            "n_eval": self.run.eval.n_samples,
+            "loss": self.run.loss.name,
+            "alpha": self.run.loss.alpha,
+            "map": self.run.map_name,
+            "seed": self.run.seed,
+        }
+
+
+def as_tensor(a: np.ndarray, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)
