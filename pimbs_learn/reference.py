@@ -82,4 +82,5 @@ def train_reference(run: Run, options: TrainOptions | None = None,
                        eval_loss=eval_hist[k], epochs=options.epochs,
                        seconds=time.perf_counter() - t0,
                        curve_epochs=np.arange(0, options.epochs, every),
-                       curve_eval=np.asarray(eval_hist[::every]))
+                       curve_eval=np.asarray(eval_hist[::every]),
+                       curve_train=np.asarray(train_hist[::every]))

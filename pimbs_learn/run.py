@@ -86,6 +86,7 @@ class TrainResult:
     seconds: float
     curve_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     curve_eval: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    curve_train: np.ndarray = field(default_factory=lambda: np.zeros(0))  # L_basic, same epochs
 
     def metrics(self) -> dict[str, Any]:
         return {

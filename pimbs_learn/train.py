@@ -125,6 +125,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     on_host = dev.type == "cpu"
     curve_e: list[int] = []
     curve_v: list[torch.Tensor] = []
+    curve_t: list[torch.Tensor] = []
 
     for epoch in range(options.epochs):
         with torch.no_grad():
@@ -138,6 +139,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             if options.curve_every and epoch % options.curve_every == 0:
                 curve_e.append(epoch)
                 curve_v.append(_eval_loss(p, x_ev, l_ev, ls))
+                curve_t.append(lb)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
                                      or epoch + 1 == options.epochs):
@@ -146,6 +148,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     with torch.no_grad():
         ev = _eval_loss(best_p, x_ev, l_ev, ls).cpu().numpy()
         curve = torch.stack(curve_v).cpu().numpy() if curve_v else np.zeros((0, r_n))
+        curve_tr = torch.stack(curve_t).cpu().numpy() if curve_t else np.zeros((0, r_n))
     seconds = time.perf_counter() - t0
     best_np, epoch_np = best.cpu().numpy(), best_epoch.cpu().numpy()
     weights = {k: v.cpu().float().numpy() for k, v in best_p.items()}
@@ -153,7 +156,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                         scaling=scalings[i], best_epoch=int(epoch_np[i]),
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
                         epochs=options.epochs, seconds=seconds,
-                        curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i])
+                        curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
+                        curve_train=curve_tr[:, i])
             for i, r in enumerate(runs)]
 
 

@@ -1,0 +1,93 @@
+"""`pimbs train`: learn a body schema (AL- or ATL-Map) from one recording."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from cli.common import user_errors
+
+LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
+
+
+@click.command("train")
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option("--map", "map_kind", type=click.Choice(["atl", "al"]), default="atl",
+              show_default=True, help="atl: (θ, f) → l; al: θ → l")
+@click.option("--loss", type=click.Choice(LOSSES), default="basic+const+pinn",
+              show_default=True)
+@click.option("--alpha", type=click.FloatRange(min=0), default=1e-5, show_default=True,
+              help="weight α of L_pinn (physical units)")
+@click.option("--n-train", type=click.IntRange(min=1), default=None,
+              help="train on N rows drawn with --seed; evaluate on the rest (or on --eval)")
+@click.option("--eval", "eval_path", type=click.Path(path_type=Path), default=None,
+              help="evaluate on this recording (same joints and muscles)")
+@click.option("--epochs", type=click.IntRange(min=1), default=20000, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="seeds the training draw and the initial weights")
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
+              show_default=True, help="Adam learning rate")
+@click.option("--robot", default=None,
+              help="robot NAME|PATH to compute τ where the recording's tau_gravity is null")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="directory to write the model (model.safetensors + model.json)")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="write the metrics here")
+@click.option("--reference", is_flag=True,
+              help="use the straightforward (slow) trainer instead of the fast one")
+@user_errors
+def command(data: Path, map_kind: str, loss: str, alpha: float, n_train: int | None,
+            eval_path: Path | None, epochs: int, seed: int, lr: float, robot: str | None,
+            device: str, out: Path | None, json_path: Path | None, reference: bool) -> None:
+    """Learn h(θ[, f]) → l from DATA (a recording) with the paper's losses.
+
+    The model kept is the one of the epoch with the lowest training L_basic; its L_eval
+    (mean over samples and muscles of squared length error, m², ×1e5) is the result.
+    """
+    import torch
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from pimbs_learn.io import save_model
+    from pimbs_learn.losses import LossConfig
+    from pimbs_learn.reference import train_reference
+    from pimbs_learn.run import TrainOptions
+    from pimbs_learn.session import prepare_run
+    from pimbs_learn.train import train
+
+    console = Console(stderr=True)
+    run = prepare_run(data, LossConfig.parse(loss, alpha), atl=map_kind == "atl",
+                      n_train=n_train, eval_path=eval_path, seed=seed, robot=robot)
+    torch.manual_seed(seed)
+    options = TrainOptions(epochs=epochs, lr=lr, device=device)
+    trainer = train_reference if reference else train
+    console.print(f"{map_kind.upper()}-Map, {run.loss.name}"
+                  f"{f' (α={alpha:g})' if run.loss.pinn else ''}: {run.train.n_samples} "
+                  f"training / {run.eval.n_samples} evaluation samples, "
+                  f"{len(run.train.joints)} joints, {len(run.train.muscles)} muscles")
+    with Progress(TextColumn("training"), BarColumn(), TextColumn("{task.completed}/"
+                  "{task.total} epochs"), TimeRemainingColumn(), console=console,
+                  transient=True) as bar:
+        task = bar.add_task("train", total=epochs)
+        result = trainer(run, options, progress=lambda e: bar.update(task, completed=e))
+
+    metrics = result.metrics()
+    metrics.update(data=str(data), data_sha256=run.train.sha256,
+                   eval_data=str(eval_path) if eval_path else None,
+                   trainer="reference" if reference else "fast", device=device)
+    console.print(f"best epoch {result.best_epoch}/{epochs}: train L_basic "
+                  f"{metrics['train_loss']:.4f}, eval L_eval {metrics['eval_loss']:.4f} "
+                  f"(×1e5 m²) in {result.seconds:.1f} s")
+    if out is not None:
+        save_model(result, out)
+        console.print(f"model written to {out}/")
+    else:
+        console.print("model not saved (give --out DIR to keep it)")
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(metrics, indent=2) + "\n")
+    click.echo(json.dumps({k: metrics[k] for k in ("eval_loss", "train_loss", "best_epoch",
+                                                   "epochs", "seconds")}))

@@ -1,0 +1,153 @@
+"""A trained body schema on disk, and the numpy API to use it.
+
+A model directory holds ``model.safetensors`` (the weights, float32) and ``model.json``
+(scaling, robot, joints, muscles, map, losses, α, metrics, data sha256, epochs, seed).
+Loading reads safetensors and JSON only — never pickle — so a model file from someone
+else cannot run code.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.numpy import load_file, save_file
+
+from pimbs_learn.data import LearnError
+from pimbs_learn.model import (
+    PARAM_NAMES,
+    Params,
+    Scaling,
+    hidden_layers,
+    jacobian,
+    network_inputs,
+    output_length,
+)
+from pimbs_learn.run import TrainResult
+
+WEIGHTS, META = "model.safetensors", "model.json"
+FORMAT = "pimbs-body-schema"
+FORMAT_VERSION = 1
+
+
+def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] | None = None
+               ) -> Path:
+    """Write the selected weights and their description to ``out_dir``."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    run = result.run
+    save_file({k: np.ascontiguousarray(result.params[k], dtype=np.float32)
+               for k in PARAM_NAMES}, str(d / WEIGHTS))
+    meta = {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "robot": run.train.robot, "joints": list(run.train.joints),
+        "muscles": list(run.train.muscles), "map": run.map_name,
+        "inputs": "theta" if not run.atl else "theta+tension",
+        "architecture": {"layers": [int(result.params["w1"].shape[1]),
+                                    int(result.params["w1"].shape[0]),
+                                    int(result.params["w2"].shape[0]),
+                                    int(result.params["w3"].shape[0])],
+                         "activation": "tanh after layers 1 and 2"},
+        "scaling": result.scaling.to_json(),
+        "loss": run.loss.name, "alpha": run.loss.alpha,
+        "data": {"path": run.train.path, "sha256": run.train.sha256},
+        "eval_data": {"path": run.eval.path, "sha256": run.eval.sha256},
+        "epochs": result.epochs, "seed": run.seed,
+        "metrics": result.metrics(),
+        **(extra or {}),
+    }
+    (d / META).write_text(json.dumps(meta, indent=2) + "\n")
+    return d
+
+
+class BodySchema:
+    """A loaded body schema: batched numpy in, numpy out (float64), physical units.
+
+    theta (N,) or (B, N) rad; f (M,) or (B, M) N — required for an ATL-Map, ignored by an
+    AL-Map's length/jacobian (but needed by ``torque``).
+    """
+
+    def __init__(self, params: Params, meta: dict[str, Any]) -> None:
+        self.meta = meta
+        self.joints: list[str] = list(meta["joints"])
+        self.muscles: list[str] = list(meta["muscles"])
+        self.atl: bool = meta["map"] == "atl"
+        self.scaling = Scaling.from_json(meta["scaling"])
+        self._p = params
+        self._inv = torch.tensor(self.scaling.input_inverse(), dtype=torch.float64)
+        self._ls = torch.tensor(self.scaling.length, dtype=torch.float64)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    @property
+    def n_muscles(self) -> int:
+        return len(self.muscles)
+
+    def _hidden(self, theta: Any, f: Any) -> tuple[torch.Tensor, ...] | Any:
+        th = np.asarray(theta, dtype=np.float64)
+        single = th.ndim == 1
+        th = np.atleast_2d(th)
+        if th.shape[-1] != self.n_joints or th.ndim != 2:
+            raise LearnError(f"theta must have shape (N,) or (B, N) with N = {self.n_joints}, "
+                             f"got {np.shape(theta)}")
+        ft = None
+        if self.atl:
+            if f is None:
+                raise LearnError("this is an ATL-Map body schema: pass the tensions f too")
+            ft = np.atleast_2d(np.asarray(f, dtype=np.float64))
+            if ft.shape != (th.shape[0], self.n_muscles):
+                raise LearnError(f"f must have shape (M,) or (B, M) with M = {self.n_muscles} "
+                                 f"and the same B as theta, got {np.shape(f)}")
+        x = network_inputs(torch.from_numpy(th), None if ft is None else torch.from_numpy(ft),
+                           self._inv)
+        return single, *hidden_layers(self._p, x)
+
+    def length(self, theta: Any, f: Any = None) -> np.ndarray:
+        """Predicted muscle lengths l = h(θ[, f]), (M,) or (B, M), m."""
+        single, _, a2 = self._hidden(theta, f)
+        out = output_length(self._p, a2, self._ls).numpy()
+        return out[0] if single else out
+
+    def jacobian(self, theta: Any, f: Any = None) -> np.ndarray:
+        """Muscle Jacobian G = ∂h/∂θ, (M, N) or (B, M, N), m/rad."""
+        single, a1, a2 = self._hidden(theta, f)
+        g = jacobian(self._p, a1, a2, self._ls, self._inv[:self.n_joints]).numpy()
+        return g[0] if single else g
+
+    def torque(self, theta: Any, f: Any) -> np.ndarray:
+        """Joint torque the muscles produce, −Gᵀf, (N,) or (B, N), N·m."""
+        if f is None:
+            raise LearnError("torque needs the tensions f")
+        g = self.jacobian(theta, f)
+        return -np.einsum("...mn,...m->...n", g, np.asarray(f, dtype=np.float64))
+
+
+def load_body_schema(model_dir: str | Path) -> BodySchema:
+    """Load a model directory written by :func:`save_model` (safetensors + JSON only)."""
+    d = Path(model_dir)
+    for name in (WEIGHTS, META):
+        if not (d / name).is_file():
+            raise LearnError(f"{d}: not a body-schema model directory (missing {name})")
+    try:
+        meta = json.loads((d / META).read_text())
+    except json.JSONDecodeError as e:
+        raise LearnError(f"{d / META}: not valid JSON ({e})") from e
+    if meta.get("format") != FORMAT or meta.get("format_version") != FORMAT_VERSION:
+        raise LearnError(f"{d / META}: not a {FORMAT} v{FORMAT_VERSION} model file")
+    try:
+        arrays = load_file(str(d / WEIGHTS))
+    except Exception as e:  # safetensors raises its own error types for corrupt files
+        raise LearnError(f"{d / WEIGHTS}: cannot read weights ({e})") from e
+    missing = [k for k in PARAM_NAMES if k not in arrays]
+    if missing:
+        raise LearnError(f"{d / WEIGHTS}: missing tensors {missing}")
+    params = {k: torch.from_numpy(arrays[k].astype(np.float64)) for k in PARAM_NAMES}
+    n_in = len(meta["joints"]) + (len(meta["muscles"]) if meta["map"] == "atl" else 0)
+    if params["w1"].shape[1] != n_in or params["w3"].shape[0] != len(meta["muscles"]):
+        raise LearnError(f"{d}: weight shapes do not match the joints/muscles in {META}")
+    return BodySchema(params, meta)
