@@ -14,6 +14,7 @@ from pimbs_hw.protocol.codec import (
     MESSAGE_TYPES,
     CodecError,
     Fault,
+    JointStatus,
     PositionCommand,
     Relax,
     SetLimits,
@@ -72,6 +73,8 @@ def _samples():
                                    (524287, 32767, 87.5, Fault(255)),
                                    (1234, 2048, 25.5, Fault.OVERHEAT | Fault.WATCHDOG)]:
         yield Status(4, 15, pos, raw, temp, faults)
+    for angle in (*_edges(JointStatus, "angle_rad"), 1.23456):
+        yield JointStatus(1, 4, angle)
 
 
 @pytest.mark.parametrize("msg", list(_samples()), ids=repr)

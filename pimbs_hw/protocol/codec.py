@@ -96,9 +96,17 @@ class Status(_Message):
     MESSAGE: ClassVar[str] = "STATUS"
 
 
-Message = Stop | Relax | PositionCommand | TensionCommand | SetLimits | Status
+@dataclass(frozen=True)
+class JointStatus(_Message):
+    """Joint encoder reading; ``board_id`` is the joint's index in the description."""
+
+    angle_rad: float
+    MESSAGE: ClassVar[str] = "JOINT"
+
+
+Message = Stop | Relax | PositionCommand | TensionCommand | SetLimits | Status | JointStatus
 MESSAGE_TYPES: tuple[type[_Message], ...] = (
-    Stop, Relax, PositionCommand, TensionCommand, SetLimits, Status,
+    Stop, Relax, PositionCommand, TensionCommand, SetLimits, Status, JointStatus,
 )
 _BY_NAME = {cls.MESSAGE: cls for cls in MESSAGE_TYPES}
 # every valid frame id -> (dataclass, board_id); a dict lookup per received frame

@@ -1,0 +1,38 @@
+"""The little the collection routine needs from an arm, as one narrow interface.
+
+Keeping the routine behind ``ArmLink`` (and not the driver's full API) lets it run against the
+real driver, the mock bus and a plain in-process stand-in in unit tests alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One snapshot of the arm in SI units; ``theta`` is None without joint encoders."""
+
+    length: np.ndarray       # (M,) m
+    tension: np.ndarray      # (M,) N
+    temperature: np.ndarray  # (M,) °C
+    theta: np.ndarray | None = None  # (N,) rad
+
+
+class ArmLink(Protocol):
+    """An arm the routine can command and read (the driver raises ``SafetyStop``)."""
+
+    def command(self, mode: tuple[str, ...] | str, values: np.ndarray) -> None:
+        """Per-muscle "length" (m) or "tension" (N) commands; also feeds the watchdog."""
+
+    def read(self) -> Reading:
+        """The latest readings of every muscle (and joint encoder)."""
+
+    def relax(self) -> None:
+        """Every muscle to its low holding tension (never slack)."""
+
+    def begin_sample(self, index: int) -> None:
+        """Told before each sample (the mock uses it to trigger ``@SAMPLE`` faults)."""

@@ -1,0 +1,46 @@
+"""Opening the output recording: a fresh file, or ``--resume`` of an interrupted one.
+
+Resuming is only honest when the file was made by the same sequence: same robot, seed, sample
+count and map. Anything else would splice two different collections into one file that looks
+valid, so it is refused with a message that says which key differs and what to do.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from calibration.recording import RecordingWriter, read_recording
+
+# metadata keys that must match for --resume (they define the pose/tension sequence)
+RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map")
+_OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map"}
+
+
+class ResumeError(ValueError):
+    """The file to resume was made by a different collection."""
+
+
+def open_recording(path: Path, meta: Mapping[str, Any], resume: bool
+                   ) -> tuple[RecordingWriter, int]:
+    """Writer for ``path`` and the first sample index still to collect.
+
+    Raises ``ResumeError`` for a mismatching file, ``RecordingError`` for an invalid one or
+    for an existing file without ``resume``.
+    """
+    if resume and path.exists():
+        existing = read_recording(path).meta
+        for key in RESUME_KEYS:
+            old, new = existing.get(key), meta.get(key)
+            if old == new:
+                continue
+            fix = (f"rerun with {_OPTION[key]} {old}" if key in _OPTION
+                   else "the robot description changed since; use the one it was made with")
+            raise ResumeError(f"cannot resume {path}: it was collected with {key}={old!r}, "
+                              f"this run has {key}={new!r}; {fix} to continue it, or choose "
+                              f"another --out for a new collection")
+    writer = RecordingWriter(path, meta, resume=resume)
+    rec = writer.recording
+    start = 0 if rec is None or rec.n_rows == 0 else int(rec.sample[-1]) + 1
+    return writer, start

@@ -1,0 +1,151 @@
+"""The collection loop: per sample, move to the pose, remove slack, settle, read, write.
+
+Order of events for sample i (see ``plan.Target``): every muscle length-controlled at the
+geometric length of a low pretension (the arm moves there), then the load-bearing muscles held
+in length and the others tension-controlled at the QP tensions (slack removed, pose kept),
+wait until settled, read, and append one row. The row is on disk (atomically) before the next
+pose is commanded, so an interruption of any kind loses at most the sample in progress.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from calibration.arm_model import ArmModel, InfeasiblePoseError
+from calibration.recording import RecordingWriter
+from calibration.simulate import approach_direction
+from pimbs_hw.collection.estimate import estimate_theta
+from pimbs_hw.collection.link import ArmLink
+from pimbs_hw.collection.plan import CollectionPlan
+from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
+
+
+@dataclass
+class Summary:
+    """What a collection did so far; kept current so an interrupted run can still report."""
+
+    path: str
+    total: int                 # samples planned
+    start: int                 # first sample index of this run (> 0 when resumed)
+    next_sample: int = 0       # first index not yet collected
+    written: int = 0           # rows written by this run
+    already: int = 0           # rows that were in the file before (resume)
+    unsettled: int = 0
+    skipped: list[int] = field(default_factory=list)  # infeasible poses
+    warnings: list[str] = field(default_factory=list)
+    stopped: str | None = None  # why the run ended early (None: completed)
+    started_at: float = field(default_factory=time.monotonic)
+    settle_time: float = 0.0    # s spent settling, summed over samples
+    tension_range: tuple[float, float] = (np.inf, -np.inf)
+    temperature_max: float = -np.inf
+
+    @property
+    def elapsed(self) -> float:
+        return time.monotonic() - self.started_at
+
+    @property
+    def rows(self) -> int:
+        return self.already + self.written
+
+    @property
+    def rate_per_min(self) -> float:
+        return 60.0 * self.written / self.elapsed if self.elapsed > 0 else 0.0
+
+    @property
+    def eta(self) -> float | None:
+        """Seconds left at the current rate (None before the first sample)."""
+        if not self.written:
+            return None
+        return (self.total - self.next_sample) * self.elapsed / self.written
+
+    @property
+    def complete(self) -> bool:
+        return self.next_sample >= self.total and self.stopped is None
+
+
+class Reporter(Protocol):
+    """Receives progress (the rich display, or nothing in tests)."""
+
+    def sample(self, summary: Summary, row: dict[str, Any]) -> None: ...
+
+    def warn(self, summary: Summary, message: str) -> None: ...
+
+
+class NullReporter:
+    def sample(self, summary: Summary, row: dict[str, Any]) -> None:
+        pass
+
+    def warn(self, summary: Summary, message: str) -> None:
+        pass
+
+
+class Collector:
+    """Runs one collection (or the rest of a resumed one) on an ``ArmLink``."""
+
+    def __init__(self, link: ArmLink, model: ArmModel, plan: CollectionPlan,
+                 writer: RecordingWriter, start: int, settle: SettleConfig,
+                 reporter: Reporter | None = None,
+                 now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC)) -> None:
+        self.link, self.model, self.plan, self.writer = link, model, plan, writer
+        self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
+        self.summary = Summary(path=str(writer.path), total=plan.n_samples, start=start,
+                               next_sample=start, already=writer.n_rows)
+
+    def run(self) -> Summary:
+        """Collect samples ``start .. total-1``; exceptions propagate with the file intact."""
+        prev_length = self.link.read().length  # approach of the first pose: from where it is
+        for i in range(self.summary.start, self.plan.n_samples):
+            self.link.begin_sample(i)
+            try:
+                target = self.plan.target(i)
+            except InfeasiblePoseError as exc:
+                self.summary.skipped.append(i)
+                self._warn(f"sample {i} skipped: {exc}")
+                self.summary.next_sample = i + 1
+                continue
+            hold_until_settled(self.link, "length", target.approach_length, self.settle)
+            held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
+                                      self.settle)
+            row = self._row(i, target.theta, held, prev_length)
+            self.writer.append(row)
+            prev_length = held.reading.length
+            self._account(i, held, row)
+        return self.summary
+
+    def _row(self, i: int, theta_command: np.ndarray, held: Settled,
+             prev_length: np.ndarray) -> dict[str, Any]:
+        r = held.reading
+        theta = r.theta if r.theta is not None else estimate_theta(
+            self.model, r.length, r.tension, theta_command)
+        return {"sample": i, "time": np.datetime64(self.now().replace(tzinfo=None), "us"),
+                "theta": theta, "theta_command": theta_command, "tension": r.tension,
+                "length": r.length, "temperature": r.temperature,
+                "approach": approach_direction(prev_length, r.length),
+                "tau_gravity": self.model.gravity_torque(theta),
+                # extra columns: how the sample settled (data quality, kept by all tools)
+                "settled": bool(held.settled), "settle_s": float(held.elapsed)}
+
+    def _account(self, i: int, held: Settled, row: dict[str, Any]) -> None:
+        s = self.summary
+        s.written += 1
+        s.next_sample = i + 1
+        s.settle_time += held.elapsed
+        lo, hi = s.tension_range
+        s.tension_range = (min(lo, float(row["tension"].min())),
+                           max(hi, float(row["tension"].max())))
+        s.temperature_max = max(s.temperature_max, float(row["temperature"].max()))
+        if not held.settled:
+            s.unsettled += 1
+            self._warn(f"sample {i} did not settle within {self.settle.timeout:g} s "
+                       f"(recorded anyway; check for a slipping wire or raise --settle-tol)")
+        self.reporter.sample(s, row)
+
+    def _warn(self, message: str) -> None:
+        self.summary.warnings.append(message)
+        self.reporter.warn(self.summary, message)

@@ -1,0 +1,69 @@
+"""``open_arm``: one call from a ``--port`` string to a running driver (and simulated arm).
+
+    from pimbs_hw import open_arm
+
+    with open_arm("virtual", "two-link-4-muscle", faults=["overheat:m1@40"], seed=1,
+                  speed=10) as (driver, mock):
+        for i, lengths in enumerate(poses):
+            if mock is not None:
+                mock.set_sample(i)           # lets @SAMPLE faults trigger at sample i
+            driver.command("length", lengths)
+            state = driver.dwell(0.3)        # settle while feeding the board watchdogs
+    # the arm is relaxed on the way out, whatever happened inside
+
+Ports: ``virtual`` (in-process simulated arm on a fresh python-can virtual channel),
+``virtual:NAME`` (same, on channel NAME), ``pty`` (simulated arm behind a pty, driven through
+the serial transport); anything else is real hardware or an external ``pimbs mockbus``
+(``can0``, ``pcan:PCAN_USBBUS1``, ``udp_multicast``, ``/dev/ttyACM0``...; see
+``pimbs_hw.transport``). ``mock`` is the ``MockArm`` (true state via ``mock.snapshot()``) or
+None on hardware. Faults and effects exist only on the simulated arm.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from pimbs_hw.driver import ArmDriver
+from pimbs_hw.mock import MockArm
+from pimbs_hw.safety import SafetyLimits
+from pimbs_hw.transport import open_transport
+
+
+def is_simulated(port: str) -> bool:
+    return port in ("virtual", "pty") or port.startswith("virtual:")
+
+
+@contextmanager
+def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
+             faults: Sequence[str] | str | None = None, effect=None, seed: int = 0,
+             speed: float = 1.0, limits: SafetyLimits | None = None,
+             connect_timeout_s: float = 1.0) -> Iterator[tuple[ArmDriver, MockArm | None]]:
+    """Driver for the arm on ``port``; starts the simulated arm for simulated ports."""
+    if isinstance(robot, str | Path):
+        from calibration.description import load_robot
+
+        robot = load_robot(robot)
+    mock = None
+    if is_simulated(port):
+        link = f"virtual:pimbs-{uuid.uuid4().hex[:12]}" if port == "virtual" else port
+        mock = MockArm(robot, link, effect=effect, faults=faults or (), seed=seed,
+                       speed=speed).start()
+        port = mock.port
+    elif faults or effect is not None:
+        raise ValueError(f"faults and effects exist only on the simulated arm, not on port "
+                         f"{port!r}; use --port virtual")
+    try:
+        transport = open_transport(port)
+        try:
+            driver = ArmDriver(transport, robot, limits, connect_timeout_s=connect_timeout_s)
+        except BaseException:
+            transport.close()
+            raise
+        with driver:
+            yield driver, mock
+    finally:
+        if mock is not None:
+            mock.stop()

@@ -1,0 +1,128 @@
+"""The true arm behind the simulated boards: static equilibrium + first-order settling.
+
+Each new set of motor commands is solved for the arm's static equilibrium
+(``ArmModel.equilibrium``, 10-60 ms) in a solver thread, so the board firmware loop keeps
+answering frames meanwhile; the state then relaxes toward that equilibrium with time constant
+``tau_s / speed`` (a speed factor > 1 makes tests and demos fast). Temperature rises with load.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PlantState:
+    theta: np.ndarray  # (N,) rad, true pose
+    tension: np.ndarray  # (M,) N, true (joint-side) tension
+    length: np.ndarray  # (M,) m, motor-side length
+    temperature: np.ndarray  # (M,) °C
+    approach: np.ndarray  # (M,) +1 lengthened into the pose, -1 shortened, 0 unknown
+
+
+class _Solver:
+    """Latest-request-wins equilibrium solver thread."""
+
+    def __init__(self, model, theta0: np.ndarray) -> None:
+        self._model = model
+        self._cond = threading.Condition()
+        self._pending: tuple[tuple[str, ...], np.ndarray] | None = None
+        self._busy = False
+        self._stopped = False
+        self._theta = theta0
+        self.target = None  # latest Equilibrium
+        self._thread = threading.Thread(target=self._run, name="mock-equilibrium", daemon=True)
+        self._thread.start()
+
+    def request(self, modes: tuple[str, ...], values: np.ndarray) -> None:
+        with self._cond:
+            self._pending = (modes, values)
+            self._cond.notify()
+
+    def idle(self) -> bool:
+        with self._cond:
+            return self._pending is None and not self._busy
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending is not None or self._stopped)
+                if self._stopped:
+                    return
+                (modes, values), self._pending = self._pending, None
+                self._busy = True
+            try:
+                eq = self._model.equilibrium(list(modes), values, theta0=self._theta)
+            except Exception as exc:  # noqa: BLE001 - a failed solve keeps the previous target
+                log.warning("mock arm: equilibrium failed for %s %s: %s", modes, values, exc)
+                eq = None
+            with self._cond:
+                if eq is not None:
+                    self.target, self._theta = eq, np.asarray(eq.theta, float)
+                self._busy = False
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join(timeout=2.0)
+
+
+class Plant:
+    """True arm state; ``command`` sets motor targets, ``step`` advances time."""
+
+    def __init__(self, model, *, speed: float = 1.0, tau_s: float = 0.075,
+                 ambient_c: np.ndarray | float = 25.0, heat_c_per_n: float = 0.05,
+                 tau_thermal_s: float = 30.0) -> None:
+        self.model = model
+        self.speed, self.tau_s, self.tau_thermal_s = speed, tau_s, tau_thermal_s
+        m = model.n_muscles
+        self.ambient_c = np.broadcast_to(np.asarray(ambient_c, float), (m,)).copy()
+        self.heat_c_per_n = heat_c_per_n
+        self.heat_rate_c_per_s = np.zeros(m)  # injected heating (overheat fault)
+        # power-up: motors hold their length (l = 0), the arm hangs on its elastic elements
+        modes, values = ("length",) * m, np.zeros(m)
+        eq = model.equilibrium(list(modes), values)
+        self.state = PlantState(np.asarray(eq.theta, float), np.asarray(eq.tension, float),
+                                np.asarray(eq.length, float), self.ambient_c.copy(),
+                                np.zeros(m, dtype=int))
+        self._command = (modes, values)
+        self._solver = _Solver(model, self.state.theta)
+        self._solver.target = eq
+
+    def command(self, modes: tuple[str, ...], values: np.ndarray) -> None:
+        """New motor targets (per muscle "length" [m] or "tension" [N]); solved if changed."""
+        if modes == self._command[0] and np.array_equal(values, self._command[1]):
+            return
+        self._command = (modes, np.array(values, float))
+        self._solver.request(*self._command)
+
+    def settled(self, tol: float = 1e-4) -> bool:
+        """Solver idle and the state within ``tol`` (m, rad) of its target."""
+        target = self._solver.target
+        return self._solver.idle() and bool(
+            np.all(np.abs(self.state.theta - target.theta) < tol)
+            and np.all(np.abs(self.state.length - target.length) < tol))
+
+    def step(self, dt: float) -> PlantState:
+        s, target = self.state, self._solver.target
+        a = 1.0 - np.exp(-dt * self.speed / self.tau_s)
+        length = s.length + a * (target.length - s.length)
+        moved = np.abs(length - s.length) > 1e-7
+        approach = np.where(moved, np.sign(length - s.length).astype(int), s.approach)
+        b = 1.0 - np.exp(-dt * self.speed / self.tau_thermal_s)
+        hot = self.ambient_c + self.heat_c_per_n * np.abs(s.tension)
+        temperature = s.temperature + b * (hot - s.temperature) + self.heat_rate_c_per_s * dt
+        self.state = replace(s, theta=s.theta + a * (target.theta - s.theta),
+                             tension=s.tension + a * (target.tension - s.tension),
+                             length=length, temperature=temperature, approach=approach)
+        return self.state
+
+    def close(self) -> None:
+        self._solver.stop()
