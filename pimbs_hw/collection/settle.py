@@ -56,8 +56,8 @@ class SettleDetector:
         """Add a reading taken at time ``t`` (s); True when the window is settled."""
         cfg, buf = self.config, self._buf
         buf.append((t, np.asarray(length, float), np.asarray(tension, float)))
-        while len(buf) > 1 and t - buf[1][0] >= cfg.window:
-            buf.popleft()  # keep exactly one reading at or before the window start
+        while len(buf) > cfg.min_readings and t - buf[1][0] >= cfg.window:
+            buf.popleft()  # keep one reading at or before the window start
         if t - buf[0][0] < cfg.window or len(buf) < cfg.min_readings:
             return False
         lengths = np.stack([b[1] for b in buf])
