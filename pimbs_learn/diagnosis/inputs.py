@@ -1,0 +1,125 @@
+"""Turning recordings (and optionally a robot description) into what the diagnosis fits.
+
+The real recording carries almost everything: its own body schema is learned from it, and
+``tau_gravity`` gives the model's gravity. The reference recording (the simulator's view
+of the same commanded poses) or the robot description supplies what the real data cannot:
+the modelled elasticity ``K`` (with the sign convention of whoever wrote the files), and
+gravity where the real file has none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.recording import Recording
+from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
+from pimbs_learn.diagnosis.fit import choose_degree, fit_effects
+from pimbs_learn.diagnosis.model import Physics, Samples, Unit
+
+DEFAULT_KAPPA = -1e-3  # start of the elasticity fit: K = 1000, physical sign
+
+
+class DiagnosisInputError(ValueError):
+    """Recordings that cannot be compared; the message names the files and what differs."""
+
+
+def samples_from(rec: Recording, tau: np.ndarray | None = None) -> Samples:
+    t = rec.time.astype("datetime64[us]").astype(np.int64) / 1e6
+    return Samples(theta=rec.theta, tension=rec.tension, length=rec.length,
+                   temperature=rec.temperature, approach=rec.approach.astype(float),
+                   tau=rec.tau_gravity if tau is None else tau, time=t - t[0],
+                   sample=rec.sample)
+
+
+@dataclass
+class Paired:
+    real: Samples
+    reference: Samples | None
+    joints: list[str]
+    muscles: list[str]
+
+
+def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
+    """Check the recordings describe the same arm and poses; fill missing gravity."""
+    if reference is not None:
+        for key in ("joints", "muscles"):
+            if getattr(real, key) != getattr(reference, key):
+                raise DiagnosisInputError(
+                    f"{real.path} and {reference.path} describe different arms: {key} "
+                    f"{getattr(real, key)} vs {getattr(reference, key)}")
+        common, ia, ib = np.intersect1d(real.sample, reference.sample, return_indices=True)
+        if len(common) < 20:
+            raise DiagnosisInputError(
+                f"{real.path} and {reference.path} share only {len(common)} sample ids; they "
+                "must be recordings of the same commanded poses (same seed)")
+        cmd_a, cmd_b = real.theta_command[ia], reference.theta_command[ib]
+        bad = np.flatnonzero(np.abs(cmd_a - cmd_b).max(axis=1) > 1e-6)
+        if bad.size:
+            raise DiagnosisInputError(
+                f"{real.path} and {reference.path} do not pair: theta_command differs at "
+                f"sample {int(common[bad[0]])}; pass the reference made with the same seed")
+    real_tau = real.tau_gravity
+    missing = np.isnan(real_tau).any(axis=1)
+    if missing.any():
+        if arm is None:
+            raise DiagnosisInputError(
+                f"{real.path}: {int(missing.sum())} rows have no tau_gravity; pass --robot "
+                "so the gravity torque can be computed from the description")
+        real_tau = real_tau.copy()
+        real_tau[missing] = arm.gravity_torque(real.theta[missing])
+    real_s = samples_from(real, real_tau)
+    ref_s = None
+    if reference is not None:
+        real_s = real_s.rows(ia)
+        ref_tau = reference.tau_gravity[ib]
+        gaps = np.isnan(ref_tau).any(axis=1)
+        ref_tau[gaps] = real_tau[ia][gaps]  # same commanded pose: the real row's gravity
+        ref_s = samples_from(reference).rows(ib)
+        ref_s.tau = ref_tau
+    return Paired(real_s, ref_s, real.joints, real.muscles)
+
+
+def degrees_for(n_joints: int, n_rows: int) -> list[int]:
+    options = {1: [3, 4, 5, 6, 7], 2: [3, 4, 5, 6], 3: [3, 4, 5], 4: [2, 3, 4]}.get(
+        n_joints, [2, 3])
+    fits = [d for d in options
+            if PolyBasis(n_joints, d, np.zeros(n_joints), np.ones(n_joints)).size < 0.3 * n_rows]
+    return fits or [2]
+
+
+def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, dict]:
+    """Gravity function, elasticity and schema basis for the real recording."""
+    real, ref = paired.real, paired.reference
+    theta_all = real.theta if ref is None else np.vstack([real.theta, ref.theta])
+    tau_all = real.tau if ref is None else np.vstack([real.tau, ref.tau])
+    ok = ~np.isnan(tau_all).any(axis=1)
+    gravity = GravityFunction(theta_all[ok], tau_all[ok])
+    info: dict = {"gravity_fit_rel_error": gravity.rms_error / max(gravity.rms_tau, 1e-12)}
+    lo, hi = real.theta.min(0), real.theta.max(0)
+    center, scale = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-3)
+    m = real.tension.shape[1]
+
+    def make(degree: int, kap: np.ndarray) -> Physics:
+        return Physics(PolyBasis(real.theta.shape[1], degree, center, scale), kap, gravity,
+                       real.temperature.mean(0))
+
+    start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
+    degrees = degrees_for(real.theta.shape[1], real.n)
+    degree = choose_degree(lambda d: make(d, start), real if ref is None else ref, degrees)
+    if kappa is None:
+        if ref is None:
+            raise DiagnosisInputError("need a reference recording or a robot description to "
+                                      "know the modelled elasticity K")
+        # The reference obeys the model by construction: its lengths and torque balance
+        # reveal the modelled elasticity (and the sign convention of its writer).
+        units = [Unit("elastic_stiffness", j) for j in range(m)]
+        ref_fit = fit_effects(make(degree, start), ref, units)
+        start = start * (1.0 + ref_fit.params)
+        info["kappa_source"] = "reference"
+    else:
+        info["kappa_source"] = "description"
+    info["kappa"] = start.tolist()
+    info["schema_degree"] = degree
+    return make(degree, start), info

@@ -1,0 +1,213 @@
+"""The physics the diagnosis fits: a body schema plus candidate effects, two residual channels.
+
+A static sample obeys two laws, whatever the arm:
+
+* **length** (L): ``l = h(θ_true) + κ ⊙ log1p(f_true)`` — the body schema ``h`` (muscle
+  routing, learned from the data themselves as a smooth function, so that a routing that
+  differs from the model is never mistaken for an effect) plus the elastic stretch of
+  ``f = exp(KΔn) − 1`` (``κ = ∓1/K``, its sign and size taken from the reference);
+* **torque** (T): ``−G(θ_true)ᵀ f_true = g_true(θ_true)`` with ``G = ∂h/∂θ`` of that same
+  schema.
+
+An effect changes what the sensors report (``f``, ``θ``) or what the model assumes
+(``g``, ``K``). Each effect has *units*, one parameter per muscle or joint:
+
+============== ======================================= =====================================
+effect         unit parameter                          acts as
+============== ======================================= =====================================
+tension_offset b_j [N]                                 f_true = f − b_j
+thermal_drift  c_j [N/°C] and b_j [N]                  f_true = f − b_j − c_j (T_j − T̄_j)
+tendon_friction μ_j [–]                                f_true = f · exp(a_j μ_j) (capstan)
+elastic_stiffness s_j [–]                              κ_j → κ_j (1 + s_j)   (K_true = K/(1+s))
+joint_offset   δ_k [rad]                               θ_true = θ − δ
+link_mass      β_k, γ_k [–] for the links beyond joint k g += β ∇V_distal,k + γ ∇V_rest,k
+============== ======================================= =====================================
+
+``V_distal,k`` is the part of the model's gravity potential that moves with joints ≥ k:
+a mass change of the links beyond joint k scales it exactly (``β = scale − 1``); its share
+of the proximal-only part is not identifiable from τ samples and gets its own ``γ``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
+
+EFFECTS = ("tendon_friction", "link_mass", "tension_offset", "thermal_drift",
+           "elastic_stiffness", "joint_offset")
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One parameter: ``effect`` on muscle or joint ``index`` (``part`` for 2-param units)."""
+
+    effect: str
+    index: int
+    part: str = ""
+
+    @property
+    def label(self) -> str:
+        return f"{self.effect}[{self.index}]{'.' + self.part if self.part else ''}"
+
+
+def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
+    """Groups of units that are selected together (one group per muscle/joint/subtree)."""
+    if effect in ("tension_offset", "tendon_friction", "elastic_stiffness"):
+        return [[Unit(effect, j)] for j in range(n_muscles)]
+    if effect == "thermal_drift":
+        return [[Unit(effect, j, "slope"), Unit(effect, j, "offset")] for j in range(n_muscles)]
+    if effect == "joint_offset":
+        return [[Unit(effect, k)] for k in range(n_joints)]
+    if effect == "link_mass":
+        return [[Unit(effect, 0, "distal")]] + [
+            [Unit(effect, k, "distal"), Unit(effect, k, "rest")] for k in range(1, n_joints)]
+    raise ValueError(f"unknown effect {effect!r}")
+
+
+@dataclass
+class Samples:
+    """The arrays of one recording (or a subset of its rows) that the physics uses."""
+
+    theta: np.ndarray        # (B, N) rad
+    tension: np.ndarray      # (B, M) N
+    length: np.ndarray       # (B, M) m
+    temperature: np.ndarray  # (B, M) °C
+    approach: np.ndarray     # (B, M) −1/0/+1
+    tau: np.ndarray          # (B, N) N·m, model gravity torque at θ
+    time: np.ndarray         # (B,) s since the first sample
+    sample: np.ndarray       # (B,) sample ids
+
+    def rows(self, idx: np.ndarray) -> Samples:
+        return Samples(**{k: v[idx] for k, v in self.__dict__.items()})
+
+    @property
+    def n(self) -> int:
+        return len(self.theta)
+
+
+@dataclass
+class Physics:
+    """What is fixed while effects are fitted: schema basis, elasticity, gravity function."""
+
+    basis: PolyBasis
+    kappa: np.ndarray            # (M,) elastic coefficient of log1p(f) in the length law
+    gravity: GravityFunction
+    temp_mean: np.ndarray        # (M,) T̄ used by thermal_drift
+    ridge: float = 1e-9
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def basis_at(self, theta: np.ndarray, key) -> tuple[np.ndarray, np.ndarray]:
+        if key is not None and key in self._cache:
+            return self._cache[key]
+        out = (self.basis.values(theta), self.basis.gradients(theta))
+        if key is not None:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache[key] = out
+        return out
+
+
+@dataclass
+class State:
+    """Corrected quantities of a set of samples under given effect parameters."""
+
+    theta: np.ndarray
+    tension: np.ndarray
+    kappa: np.ndarray
+    tau: np.ndarray
+
+
+def apply_effects(physics: Physics, data: Samples, units: list[Unit],
+                  params: np.ndarray) -> State:
+    """Undo the effects: the true pose, tensions, elasticity and gravity they imply."""
+    theta = data.theta
+    f = data.tension.astype(float, copy=True)
+    kappa = physics.kappa.copy()
+    delta = np.zeros(theta.shape[1])
+    gravity_extra = np.zeros(physics.gravity.coef.shape)
+    gain = np.zeros(f.shape[1])
+    for u, p in zip(units, params, strict=True):
+        if u.effect == "tension_offset" or (u.effect == "thermal_drift" and u.part == "offset"):
+            f[:, u.index] -= p
+        elif u.effect == "thermal_drift":
+            f[:, u.index] -= p * (data.temperature[:, u.index] - physics.temp_mean[u.index])
+        elif u.effect == "tendon_friction":
+            gain[u.index] = p
+        elif u.effect == "elastic_stiffness":
+            kappa[u.index] *= 1.0 + p
+        elif u.effect == "joint_offset":
+            delta[u.index] = p
+        elif u.effect == "link_mass":
+            distal, rest = physics.gravity.distal_split(u.index)
+            gravity_extra += p * (distal if u.part == "distal" else rest)
+    if np.any(gain):
+        f *= np.exp(data.approach * gain)
+    tau = data.tau
+    if np.any(delta):
+        theta = theta - delta
+        tau = tau + physics.gravity.torque(theta) - physics.gravity.torque(data.theta)
+    if np.any(gravity_extra):
+        tau = tau + physics.gravity.torque(theta, gravity_extra)
+    return State(theta, f, kappa, tau)
+
+
+def schema_target(state: State, data: Samples) -> np.ndarray:
+    """Length minus the elastic stretch: what the body schema h(θ) must explain."""
+    return data.length - state.kappa * np.log1p(np.maximum(state.tension, 0.0))
+
+
+def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
+    """Least-squares body schema weights (P, M) on these samples."""
+    values, _ = physics.basis_at(state.theta, key)
+    y = schema_target(state, data)
+    ata = values.T @ values
+    reg = physics.ridge * np.trace(ata) / len(ata)
+    return np.linalg.solve(ata + reg * np.eye(len(ata)), values.T @ y)
+
+
+def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
+              key=None) -> tuple[np.ndarray, np.ndarray]:
+    """(length residual (B, M) in m, torque residual (B, N) in N·m)."""
+    values, grads = physics.basis_at(state.theta, key)
+    r_len = schema_target(state, data) - values @ weights
+    jac = np.einsum("bpn,pm->bmn", grads, weights)  # G = ∂h/∂θ, (B, M, N)
+    r_tau = -np.einsum("bmn,bm->bn", jac, state.tension) - state.tau
+    return r_len, r_tau
+
+
+@dataclass
+class Fit:
+    """Effect parameters fitted on a training set, with what is needed to predict."""
+
+    units: list[Unit]
+    params: np.ndarray
+    weights: np.ndarray
+    sigma_len: np.ndarray
+    sigma_tau: np.ndarray
+    log_lik: float
+    cov: np.ndarray | None = None
+
+    def with_params(self, params: np.ndarray) -> Fit:
+        return replace(self, params=params)
+
+
+def evaluate(physics: Physics, fit: Fit, data: Samples, key=None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of ``data`` under a fit (its effect parameters and body schema)."""
+    state = apply_effects(physics, data, fit.units, fit.params)
+    return residuals(physics, state, data, fit.weights,
+                     key if not _moves_pose(fit.units) else None)
+
+
+def _moves_pose(units: list[Unit]) -> bool:
+    return any(u.effect == "joint_offset" for u in units)
+
+
+def profile_log_lik(r_len: np.ndarray, r_tau: np.ndarray) -> float:
+    """Gaussian log-likelihood with each muscle's and joint's variance profiled out."""
+    n = len(r_len)
+    rss = np.concatenate([np.sum(r_len**2, 0), np.sum(r_tau**2, 0)])
+    return float(-0.5 * n * np.sum(np.log(np.maximum(rss / n, 1e-300))))
