@@ -33,23 +33,17 @@ FORMAT = "pimbs-body-schema"
 FORMAT_VERSION = 1
 
 
-def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] | None = None
-               ) -> Path:
-    """Write the selected weights and their description to ``out_dir``."""
-    d = Path(out_dir)
-    d.mkdir(parents=True, exist_ok=True)
+def model_meta(result: TrainResult) -> dict[str, Any]:
+    """The JSON description of a trained model (everything but the weights)."""
     run = result.run
-    save_file({k: np.ascontiguousarray(result.params[k], dtype=np.float32)
-               for k in PARAM_NAMES}, str(d / WEIGHTS))
-    meta = {
+    w = result.params
+    return {
         "format": FORMAT, "format_version": FORMAT_VERSION,
         "robot": run.train.robot, "joints": list(run.train.joints),
         "muscles": list(run.train.muscles), "map": run.map_name,
         "inputs": "theta" if not run.atl else "theta+tension",
-        "architecture": {"layers": [int(result.params["w1"].shape[1]),
-                                    int(result.params["w1"].shape[0]),
-                                    int(result.params["w2"].shape[0]),
-                                    int(result.params["w3"].shape[0])],
+        "architecture": {"layers": [int(w["w1"].shape[1]), int(w["w1"].shape[0]),
+                                    int(w["w2"].shape[0]), int(w["w3"].shape[0])],
                          "activation": "tanh after layers 1 and 2"},
         "scaling": result.scaling.to_json(),
         "loss": run.loss.name, "alpha": run.loss.alpha,
@@ -57,10 +51,25 @@ def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] |
         "eval_data": {"path": run.eval.path, "sha256": run.eval.sha256},
         "epochs": result.epochs, "seed": run.seed,
         "metrics": result.metrics(),
-        **(extra or {}),
     }
+
+
+def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] | None = None
+               ) -> Path:
+    """Write the selected weights and their description to ``out_dir``."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    save_file({k: np.ascontiguousarray(result.params[k], dtype=np.float32)
+               for k in PARAM_NAMES}, str(d / WEIGHTS))
+    meta = {**model_meta(result), **(extra or {})}
     (d / META).write_text(json.dumps(meta, indent=2) + "\n")
     return d
+
+
+def schema_from_result(result: TrainResult) -> BodySchema:
+    """The in-memory model of a training result (as if saved and loaded)."""
+    params = {k: torch.from_numpy(result.params[k].astype(np.float64)) for k in PARAM_NAMES}
+    return BodySchema(params, model_meta(result))
 
 
 class BodySchema:

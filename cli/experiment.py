@@ -1,0 +1,90 @@
+"""`pimbs experiment`: the paper's learning experiments (Tables I–III) with figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cli.common import user_errors
+
+
+@click.command("experiment")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help="epochs per run [default: 20000, or 300 with --quick]")
+@click.option("--seeds", type=click.IntRange(min=1), default=None,
+              help="seeds per cell [default: 5, or 2 with --quick]")
+@click.option("--tables", default="1,2,3", show_default=True,
+              help="which tables to run, e.g. '1,2' or '3'")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("experiment-out"), show_default=True)
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
+              show_default=True)
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="cuda trains all runs of one table cell-row together (stacked weights)")
+@click.option("--quick", is_flag=True,
+              help="smoke run: 300 epochs, 2 seeds, 200-sample D_eval")
+@user_errors
+def command(epochs: int | None, seeds: int | None, tables: str, out_dir: Path, lr: float,
+            device: str, quick: bool) -> None:
+    """Reproduce Tables I–III: mean ± std of L_eval^best (×1e5) over seeds, L_eval curves
+    and the joint-angle / muscle-length figure, written to --out."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.table import Table
+
+    from pimbs_learn.experiment import paper_tables, run_table, save_outputs, table_runs
+    from pimbs_learn.run import TrainOptions
+
+    epochs = epochs or (300 if quick else 20000)
+    seeds = seeds or (2 if quick else 5)
+    try:
+        wanted = {int(s) for s in tables.split(",") if s.strip()}
+    except ValueError as e:
+        raise click.BadParameter(f"'{tables}' is not a list like 1,2,3",
+                                 param_hint="--tables") from e
+    specs = [s for s in paper_tables(quick) if int(s.key[-1]) in wanted]
+    if not specs:
+        raise click.BadParameter("choose among 1, 2, 3", param_hint="--tables")
+    console = Console()
+    options = TrainOptions(epochs=epochs, lr=lr, device=device,
+                           curve_every=max(epochs // 200, 1))
+    options.torch_device()  # refuse cuda without a GPU before simulating anything
+
+    groups = [(spec, table_runs(spec, out_dir / "data", seeds, console.print))
+              for spec in specs]
+    total = sum(len(items) for _, g in groups for items in g.values()) * epochs
+    results = []
+    with Progress(TextColumn("{task.description}"), BarColumn(),
+                  TextColumn("{task.percentage:>5.1f}%"), TimeElapsedColumn(),
+                  TimeRemainingColumn(), console=console) as bar:
+        task = bar.add_task("training", total=total)
+        for spec, g in groups:
+            bar.update(task, description=spec.key)
+            results.append(run_table(spec, g, options, stack=device == "cuda",
+                                     on_epochs=lambda k: bar.advance(task, k)))
+
+    for t in results:
+        table = Table(title=f"{t.spec.title} — L_eval^best ×1e5, {seeds} seeds, "
+                            f"{epochs} epochs")
+        table.add_column("Method")
+        for n in t.spec.n_train:
+            table.add_column(f"N_train={n}", justify="right")
+        labels = list(dict.fromkeys(m.label for m in t.spec.methods))
+        best = {n: min(t.cell(lab, n)[0] for lab in labels) for n in t.spec.n_train}
+        for lab in labels:
+            cells = []
+            for n in t.spec.n_train:
+                mean, std = t.cell(lab, n)
+                s = f"{mean:.2f} ± {std:.2f}"
+                cells.append(f"[bold]{s}[/bold]" if mean == best[n] else s)
+            table.add_row(lab, *cells)
+        console.print(table)
+    for f in save_outputs(results, out_dir, options, seeds):
+        console.print(f"wrote {f}")

@@ -1,0 +1,198 @@
+"""The paper's learning experiments (Tables I–III) on simulated recordings.
+
+Table I:  AL-Map,  two-link-4-muscle, N_train ∈ {3, 5, 10}, 4 losses, α = 1e-5.
+Table II: ATL-Map, two-link-4-muscle, N_train ∈ {5, 10, 30}, 4 losses, α = 1e-5.
+  Both: training rows drawn (per seed) from a training recording; a separate 1000-sample
+  recording is D_eval. The paper's simulation is exact, so these use noise 0.
+Table III: ATL-Map, left-arm-5dof, 496 samples (standing in for the real arm: sensor noise
+  on), N_train ∈ {10, 30} drawn per seed, the rest is D_eval; Basic, Basic+Const,
+  Basic+PINN (α = 1e-5) and Basic+Const+PINN with α ∈ {1e-5, 1e-6, 1e-7, 1e-8}.
+
+Data are made with :func:`calibration.simulate.simulate` exactly as ``pimbs simulate`` does
+(the equivalent command lines are printed and saved), and read back through the recording
+format, so the experiment exercises the same path as a user's `pimbs train`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pimbs_learn.data import Samples, load_samples, split
+from pimbs_learn.losses import REPORT_SCALE, LossConfig
+from pimbs_learn.run import Run, TrainOptions, TrainResult
+from pimbs_learn.train import train_runs
+
+TWO_LINK, FIVE_DOF = "two-link-4-muscle", "left-arm-5dof"
+PAPER_LOSSES = ("basic", "basic+const", "basic+pinn", "basic+const+pinn")
+
+
+@dataclass(frozen=True)
+class Method:
+    """One row of a table: a loss and its α."""
+
+    loss: str
+    alpha: float = 1e-5
+
+    @property
+    def label(self) -> str:
+        name = "+".join(t.capitalize() if t != "pinn" else "PINN" for t in self.loss.split("+"))
+        return f"{name} (α={self.alpha:g})" if "pinn" in self.loss else name
+
+    def config(self) -> LossConfig:
+        return LossConfig.parse(self.loss, self.alpha)
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    key: str
+    title: str
+    robot: str
+    atl: bool
+    n_train: tuple[int, ...]
+    methods: tuple[Method, ...]
+    pool: int  # rows of the training recording (Tables I/II) or of the whole recording (III)
+    eval_samples: int | None  # separate D_eval size, or None: the rest of the recording
+    noise: float
+
+
+def paper_tables(quick: bool = False) -> list[TableSpec]:
+    """The three tables; ``quick`` shrinks data sizes for a smoke run, not the structure."""
+    paper = tuple(Method(m) for m in PAPER_LOSSES)
+    sweep = (Method("basic"), Method("basic+const"), Method("basic+pinn", 1e-5),
+             *(Method("basic+const+pinn", a) for a in (1e-5, 1e-6, 1e-7, 1e-8)))
+    ev = 200 if quick else 1000
+    return [
+        TableSpec("table1", "Table I: AL-Map, 2-DOF 4-muscle simulation", TWO_LINK, False,
+                  (3, 5, 10), paper, 100, ev, 0.0),
+        TableSpec("table2", "Table II: ATL-Map, 2-DOF 4-muscle simulation", TWO_LINK, True,
+                  (5, 10, 30), paper, 100, ev, 0.0),
+        TableSpec("table3", "Table III: ATL-Map, 5-DOF 10-muscle arm (simulated, noisy), "
+                  "α sweep", FIVE_DOF, True, (10, 30), sweep, 496, None, 1.0),
+    ]
+
+
+def simulate_recording(path: Path, robot: str, samples: int, atl: bool, seed: int,
+                       noise: float) -> str:
+    """Write a recording like `pimbs simulate` would; returns that command line."""
+    from calibration.arm_model import ArmModel
+    from calibration.recording import write_recording
+    from calibration.simulate import simulate
+
+    map_kind = "atl" if atl else "al"
+    cmd = (f"pimbs simulate --robot {robot} --samples {samples} --map {map_kind} "
+           f"--seed {seed} --noise {noise:g} --out {path}")
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data, meta = simulate(ArmModel.load(robot), samples, map_kind, seed=seed, noise=noise)
+        write_recording(path, data, meta)
+    return cmd
+
+
+@dataclass
+class TableResult:
+    spec: TableSpec
+    results: dict[tuple[str, int], list[TrainResult]]  # (method label, N) -> one per seed
+
+    def cell(self, label: str, n: int) -> tuple[float, float]:
+        v = np.array([r.eval_loss for r in self.results[(label, n)]]) * REPORT_SCALE
+        return float(v.mean()), float(v.std())
+
+
+def table_runs(spec: TableSpec, data_dir: Path, seeds: int,
+               log: Callable[[str], None]) -> dict[int, list[tuple[Method, Run]]]:
+    """Data for one table and its runs, grouped by N_train (runs of one N stack)."""
+    m = "atl" if spec.atl else "al"
+    base = data_dir / f"{spec.robot}-{m}"
+    train_rec = base.with_name(base.name + f"-{spec.pool}.parquet")
+    log(simulate_recording(train_rec, spec.robot, spec.pool, spec.atl, 0, spec.noise))
+    pool = load_samples(train_rec)
+    ev: Samples | None = None
+    if spec.eval_samples:
+        eval_rec = base.with_name(base.name + f"-eval-{spec.eval_samples}.parquet")
+        log(simulate_recording(eval_rec, spec.robot, spec.eval_samples, spec.atl, 1000,
+                               spec.noise))
+        ev = load_samples(eval_rec)
+    groups: dict[int, list[tuple[Method, Run]]] = {}
+    for n in spec.n_train:
+        for seed in range(seeds):
+            tr, rest = split(pool, n, seed)
+            for method in spec.methods:
+                run = Run(tr, ev if ev is not None else rest, method.config(), seed, spec.atl)
+                groups.setdefault(n, []).append((method, run))
+    return groups
+
+
+def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
+              options: TrainOptions, stack: bool,
+              on_epochs: Callable[[int], None]) -> TableResult:
+    """Train every run of a table; ``stack`` trains all runs of one N together (GPU)."""
+    results: dict[tuple[str, int], list[TrainResult]] = {}
+    for n, items in groups.items():
+        batches = [items] if stack else [[it] for it in items]
+        for batch in batches:
+            done = 0
+
+            def tick(e: int, k: int = len(batch)) -> None:
+                nonlocal done
+                on_epochs((e - done) * k)
+                done = e
+
+            out = train_runs([r for _, r in batch], options, progress=tick)
+            for (method, _), res in zip(batch, out, strict=True):
+                results.setdefault((method.label, n), []).append(res)
+    return TableResult(spec, results)
+
+
+def table_markdown(t: TableResult) -> str:
+    """Mean ± std of L_eval^best ×1e5 per method and N_train; best mean in bold."""
+    ns = t.spec.n_train
+    labels = list(dict.fromkeys(m.label for m in t.spec.methods))
+    best = {n: min(t.cell(lab, n)[0] for lab in labels) for n in ns}
+    lines = [f"### {t.spec.title}", "",
+             "| Method | " + " | ".join(f"N_train={n}" for n in ns) + " |",
+             "|---|" + "---:|" * len(ns)]
+    for lab in labels:
+        cells = []
+        for n in ns:
+            mean, std = t.cell(lab, n)
+            s = f"{mean:.2f} ± {std:.2f}"
+            cells.append(f"**{s}**" if mean == best[n] else s)
+        lines.append(f"| {lab} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def results_json(tables: list[TableResult], options: TrainOptions, seeds: int) -> dict:
+    out: dict = {"epochs": options.epochs, "lr": options.lr, "seeds": seeds,
+                 "loss_scale": REPORT_SCALE, "tables": {}}
+    for t in tables:
+        rows = []
+        for (label, n), res in t.results.items():
+            mean, std = t.cell(label, n)
+            rows.append({"method": label, "n_train": n, "mean": mean, "std": std,
+                         "runs": [r.metrics() for r in res]})
+        out["tables"][t.spec.key] = {"title": t.spec.title, "rows": rows}
+    return out
+
+
+def save_outputs(tables: list[TableResult], out_dir: Path, options: TrainOptions,
+                 seeds: int) -> list[Path]:
+    """tables.md, results.json and the figures; returns the files written."""
+    from pimbs_learn.figures import plot_curves, plot_joint_length
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md = out_dir / "tables.md"
+    md.write_text(f"L_eval^best ×1e5 (m²), mean ± std over {seeds} seeds, "
+                  f"{options.epochs} epochs\n\n" + "\n".join(table_markdown(t) for t in tables))
+    js = out_dir / "results.json"
+    js.write_text(json.dumps(results_json(tables, options, seeds), indent=1) + "\n")
+    files = [md, js]
+    for t in tables:
+        files.append(plot_curves(t, out_dir / f"{t.spec.key}-curves.png"))
+        if t.spec.key == "table1" and 5 in t.spec.n_train:
+            files.append(plot_joint_length(t, 5, out_dir / "table1-joint-length.png"))
+    return files

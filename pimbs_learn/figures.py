@@ -1,0 +1,100 @@
+"""The experiment's figures (matplotlib, Agg backend, PNG): L_eval curves and the
+joint-angle / muscle-length comparison of the paper's Fig. "analysis"."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pimbs_learn.losses import REPORT_SCALE
+
+if TYPE_CHECKING:
+    from pimbs_learn.experiment import TableResult
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_curves(t: TableResult, path: Path) -> Path:
+    """L_eval (×1e5, log scale) against epoch: mean over seeds with a ±std band, per
+    method, one panel per N_train."""
+    plt = _pyplot()
+    ns = t.spec.n_train
+    fig, axes = plt.subplots(1, len(ns), figsize=(5 * len(ns), 4), squeeze=False)
+    labels = list(dict.fromkeys(m.label for m in t.spec.methods))
+    for ax, n in zip(axes[0], ns, strict=True):
+        for lab in labels:
+            res = t.results[(lab, n)]
+            if not len(res[0].curve_eval):
+                continue
+            c = np.stack([r.curve_eval for r in res]) * REPORT_SCALE
+            mean, std = c.mean(0), c.std(0)
+            (line,) = ax.plot(res[0].curve_epochs, mean, label=lab, lw=1.2)
+            ax.fill_between(res[0].curve_epochs, np.maximum(mean - std, 1e-12), mean + std,
+                            color=line.get_color(), alpha=0.15, lw=0)
+        ax.set_yscale("log")
+        ax.set_title(f"N_train = {n}")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("L_eval ×1e5 [m²]")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(t.spec.title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
+                      points: int = 101) -> Path:
+    """Muscle length against each joint angle (the others at 0): the geometric model the
+    data came from (solid) and each method's trained model (dashed), for one seed.
+
+    For an AL-Map the model's length at θ is h_geom(θ) − Δn(f(θ)) with f from the QP with
+    f_min = 0, i.e. exactly what the simulated data hold.
+    """
+    from calibration.arm_model import ArmModel
+    from pimbs_learn.io import schema_from_result
+
+    plt = _pyplot()
+    arm = ArmModel.load(t.spec.robot)
+    labels = list(dict.fromkeys(m.label for m in t.spec.methods))
+    nj = arm.n_joints
+    fig, axes = plt.subplots(len(labels), nj, figsize=(5 * nj, 3 * len(labels)),
+                             squeeze=False, sharex="col")
+    for j in range(nj):
+        lo, hi = arm.joint_range[j]
+        theta = np.zeros((points, nj))
+        theta[:, j] = np.linspace(lo, hi, points)
+        f_min = np.zeros(arm.n_muscles)
+        tension = np.stack([arm.tension_distribution(th, f_min) for th in theta])
+        truth = arm.length(theta, tension)
+        for i, lab in enumerate(labels):
+            res = t.results[(lab, n)][seed_index]
+            model = schema_from_result(res)
+            pred = model.length(theta, tension if model.atl else None)
+            ax = axes[i][j]
+            for k in range(arm.n_muscles):
+                (line,) = ax.plot(theta[:, j], truth[:, k], lw=1.2,
+                                  label=f"{arm.muscles[k]} geometric")
+                ax.plot(theta[:, j], pred[:, k], "--", color=line.get_color(), lw=1.2,
+                        label=f"{arm.muscles[k]} trained")
+            tr = res.run.train.theta
+            ax.plot(tr[:, j], np.zeros(len(tr)), "k|", ms=8)
+            ax.set_title(f"{lab}: moving {arm.joints[j]}", fontsize=9)
+            ax.set_ylabel("muscle length [m]")
+            ax.grid(alpha=0.3)
+        axes[-1][j].set_xlabel(f"{arm.joints[j]} [rad]  (ticks: training θ)")
+    axes[0][0].legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
