@@ -21,8 +21,8 @@ def write_plots(result: dict, internals: dict, out_dir: str | Path) -> list[Path
     physics, data = internals["physics"], internals["data"]
     null, final = internals["null"], internals["final"]
     joints, muscles = result["joints"], result["muscles"]
-    r0_len, r0_tau = evaluate(physics, null, data)
-    r1_len, r1_tau = evaluate(physics, final, data)
+    _, r0_tau = evaluate(physics, null, data)
+    _, r1_tau = evaluate(physics, final, data)
     paths = []
 
     # 1. torque residual against each joint angle, before and after
@@ -84,5 +84,4 @@ def write_plots(result: dict, internals: dict, out_dir: str | Path) -> list[Path
     paths.append(out / "fit_before_after.png")
     fig.savefig(paths[-1], dpi=90)
     plt.close(fig)
-    _ = (r0_len, r1_len)
     return paths
