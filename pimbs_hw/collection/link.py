@@ -7,7 +7,7 @@ real driver, the mock bus and a plain in-process stand-in in unit tests alike.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -36,3 +36,24 @@ class ArmLink(Protocol):
 
     def begin_sample(self, index: int) -> None:
         """Told before each sample (the mock uses it to trigger ``@SAMPLE`` faults)."""
+
+
+class DriverLink:
+    """``ArmLink`` over ``pimbs_hw.ArmDriver`` (and the ``MockArm`` behind it, if simulated)."""
+
+    def __init__(self, driver: Any, mock: Any = None) -> None:
+        self.driver, self.mock = driver, mock
+
+    def command(self, mode: tuple[str, ...] | str, values: np.ndarray) -> None:
+        self.driver.command(mode, values)
+
+    def read(self) -> Reading:
+        s = self.driver.read_state()
+        return Reading(s.length, s.tension, s.temperature, s.theta)
+
+    def relax(self) -> None:
+        self.driver.relax()
+
+    def begin_sample(self, index: int) -> None:
+        if self.mock is not None:
+            self.mock.set_sample(index)

@@ -11,11 +11,23 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from calibration.recording import RecordingWriter, read_recording
+from calibration.arm_model import ArmModel
+from calibration.recording import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
 RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map")
 _OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map"}
+
+
+def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,
+                    simulated: bool, settle: Mapping[str, Any]) -> dict[str, Any]:
+    """The recording's ``pimbs`` metadata: identity of the sequence plus how it was taken."""
+    return make_meta(model.joints, model.muscles, "simulation" if simulated else "hardware",
+                     robot=model.robot.name, **plan_meta, port=port,
+                     generator="pimbs collect",
+                     theta_source="joint_encoders" if model.robot.joint_encoders else "model",
+                     settle=dict(settle), joint_range=model.joint_range.tolist(),
+                     K=model.K.tolist())
 
 
 class ResumeError(ValueError):

@@ -109,9 +109,11 @@ class Collector:
                 self._warn(f"sample {i} skipped: {exc}")
                 self.summary.next_sample = i + 1
                 continue
-            hold_until_settled(self.link, "length", target.approach_length, self.settle)
+            muscles = self.model.muscles
+            hold_until_settled(self.link, "length", target.approach_length, self.settle,
+                               muscles)
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
-                                      self.settle)
+                                      self.settle, muscles)
             row = self._row(i, target.theta, held, prev_length)
             self.writer.append(row)
             prev_length = held.reading.length
@@ -143,7 +145,8 @@ class Collector:
         if not held.settled:
             s.unsettled += 1
             self._warn(f"sample {i} did not settle within {self.settle.timeout:g} s "
-                       f"(recorded anyway; check for a slipping wire or raise --settle-tol)")
+                       f"({held.worst}); recorded anyway, flagged settled=false. Check that "
+                       f"wire, or raise --settle-tol / --settle-timeout")
         self.reporter.sample(s, row)
 
     def _warn(self, message: str) -> None:

@@ -1,0 +1,132 @@
+"""`pimbs collect`: record a body-schema data set on the arm (or the simulated arm).
+
+A thin shell over ``pimbs_hw.collection``: parse options, connect, run with a live display,
+and always end with a summary. Exit status: 0 complete, 1 stopped by an error (the message
+says what to do), 130 interrupted by Ctrl-C. In every case the file holds every finished
+sample and ``--resume`` continues it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+import click
+
+from cli.common import robot_option, user_errors
+
+
+def _default_out(robot: str) -> Path:
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    return Path(f"collection-{Path(robot).name.removesuffix('.muscles.yaml')}-{stamp}.parquet")
+
+
+@click.command("collect")
+@click.option("--port", required=True,
+              help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, /dev/ttyUSB0 "
+                   "(serial), or virtual for the simulated arm")
+@click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True)
+@robot_option()
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="recording to write [default: collection-ROBOT-UTCTIME.parquet]")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="pose sequence; the same seed gives the poses of `pimbs simulate --seed`")
+@click.option("--map", "map_kind", type=click.Choice(["atl", "al"]), default="atl",
+              show_default=True, help="atl: tension floors uniform in [10, 300] N per sample "
+                                      "(as simulate); al: each muscle's f_floor")
+@click.option("--resume", is_flag=True,
+              help="continue an interrupted --out file (same --seed/--samples/--robot/--map)")
+@click.option("--fault", "faults", multiple=True, metavar="KIND:MUSCLE@SAMPLE",
+              help="simulated arm only: inject a fault, e.g. silent-board:m1@5, overheat:m2@10")
+@click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
+              help="simulated arm only: the arm carries this unlabelled effect, e.g. "
+                   "tension_offset:20,muscles=m1 (see pimbs simulate --help)")
+@click.option("--settle-tol", type=click.FloatRange(min=0, min_open=True), default=1.0,
+              show_default=True, help="N: tension drift / error counted as settled")
+@click.option("--settle-length-tol", type=click.FloatRange(min=0, min_open=True),
+              default=3e-5, show_default=True, help="m: length drift / error counted as settled")
+@click.option("--settle-window", type=click.FloatRange(min=0), default=0.1, show_default=True,
+              help="s of readings that must be quiet")
+@click.option("--settle-timeout", type=click.FloatRange(min=0, min_open=True), default=5.0,
+              show_default=True, help="s; an unsettled sample is recorded, flagged and warned")
+@click.option("--fixed-wait", type=click.FloatRange(min=0), default=None,
+              help="s: wait this long per move instead of detecting settling")
+@click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
+              show_default=True, help="simulated arm only: time speed-up of its dynamics")
+@user_errors
+def command(port: str, samples: int, robot: str, out: Path | None, seed: int, map_kind: str,
+            resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
+            settle_tol: float, settle_length_tol: float, settle_window: float,
+            settle_timeout: float, fixed_wait: float | None, mock_speed: float) -> None:
+    """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
+
+    Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
+    lose at most the sample in progress; --resume continues the same seeded sequence.
+    """
+    from calibration.arm_model import ArmModel
+    from pimbs_hw import is_simulated
+    from pimbs_hw.collection.plan import CollectionPlan
+    from pimbs_hw.collection.resume import collection_meta, open_recording
+    from pimbs_hw.collection.settle import SettleConfig
+    from pimbs_hw.mock.faults import parse_faults
+
+    simulated = is_simulated(port)
+    if (faults or conceal) and not simulated:
+        raise click.UsageError(f"--fault and --conceal act on the simulated arm only; "
+                               f"use --port virtual, not {port!r}")
+    if resume and out is None:
+        raise click.UsageError("--resume needs --out FILE (the recording to continue)")
+    model = ArmModel.load(robot)
+    parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
+    out = out or _default_out(robot)
+    plan = CollectionPlan(model, samples, seed, map_kind)
+    settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
+                          window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
+    meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
+                           settle=settle.meta())
+    writer, start = open_recording(out, meta, resume)
+    if start >= samples:
+        click.echo(f"{out} already holds all {samples} samples; nothing to do")
+        return
+    _run(port, model, plan, writer, start, settle, faults, conceal, seed, mock_speed)
+
+
+def _run(port, model, plan, writer, start, settle, faults, conceal, seed, speed) -> None:
+    """Connect, collect with the live panel, and report however it ends."""
+    from rich.console import Console
+
+    from calibration.recording import RecordingWriteError
+    from pimbs_hw.collection.progress import LiveReporter, summary_lines
+    from pimbs_hw.collection.routine import Collector
+    from pimbs_hw.collection.session import open_link, stop_advice
+    from pimbs_hw.safety import SafetyStop
+
+    console = Console(stderr=True)
+    collector = None
+    error: str | None = None
+    try:
+        with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
+                       speed=speed) as link:
+            collector = Collector(link, model, plan, writer, start, settle)
+            if start:
+                console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
+            with LiveReporter(console) as reporter:
+                collector.reporter = reporter
+                collector.run()
+    except KeyboardInterrupt:
+        if collector is not None:
+            collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
+    except SafetyStop as stop:
+        error = stop_advice(stop)
+    except RecordingWriteError as exc:
+        error = (f"{exc}. The arm was relaxed; samples written so far are safe. "
+                 f"Free disk space, then rerun with --resume.")
+    if collector is not None:
+        if error:
+            collector.summary.stopped = error.split(". ")[0]
+        for line in summary_lines(collector.summary):
+            click.echo(line)
+    if error:
+        raise click.ClickException(error)
+    if collector is None or not collector.summary.complete:
+        raise click.exceptions.Exit(130)

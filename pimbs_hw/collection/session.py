@@ -1,0 +1,78 @@
+"""Connecting a collection to its arm, and the advice a person needs when the arm stops.
+
+The driver's ``SafetyStop`` says *what* happened and where (muscle, board, port); this module
+adds *what to do*, and turns a failure to connect (wrong port, no board answers, a robot
+description that does not match the boards) into one clear ``ConnectError``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+
+from calibration.description import RobotDescription
+from calibration.effects import parse_effect
+from pimbs_hw import open_arm
+from pimbs_hw.collection.link import DriverLink
+from pimbs_hw.errors import HardwareError
+from pimbs_hw.safety import (
+    BoardSilent,
+    BusOff,
+    CorruptFrames,
+    FramesDropped,
+    LinkLost,
+    LoadcellSaturated,
+    Overheat,
+    SafetyStop,
+    TensionLimit,
+    WatchdogExpired,
+)
+
+
+class ConnectError(HardwareError):
+    """The arm on ``--port`` could not be brought up; the message says what to check."""
+
+
+@contextlib.contextmanager
+def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
+              conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0
+              ) -> Iterator[DriverLink]:
+    """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``).
+
+    On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
+    """
+    effects = [parse_effect(spec, seed=seed) for spec in conceal]
+    with contextlib.ExitStack() as stack:
+        try:
+            driver, mock = stack.enter_context(open_arm(
+                port, robot, faults=list(faults), effect=effects or None, seed=seed,
+                speed=speed))
+        except SafetyStop as stop:
+            raise ConnectError(
+                f"no working arm on port {port!r}: {stop}. Is the arm powered and the port "
+                f"right, and does --robot {robot.name} describe the boards on this bus "
+                f"(board ids {', '.join(str(m.board_id) for m in robot.muscles)})? "
+                "For the simulated arm use --port virtual") from stop
+        yield DriverLink(driver, mock)
+
+
+_ADVICE: tuple[tuple[type[SafetyStop], str], ...] = (
+    (BoardSilent, "check that board's power, CAN cable and connectors"),
+    (Overheat, "let that motor cool down; a long run at high tension heats it (--map al "
+               "holds lower tensions)"),
+    (TensionLimit, "check that wire for a snag or a jump off its pulley, and its f_max"),
+    (LoadcellSaturated, "check that loadcell's wiring and its calibration in the robot file"),
+    (FramesDropped, "check the bus wiring, termination (120 ohm at both ends) and bitrate"),
+    (CorruptFrames, "check the bus wiring, termination (120 ohm at both ends) and bitrate"),
+    (BusOff, "check the bus wiring, termination (120 ohm at both ends) and bitrate"),
+    (WatchdogExpired, "this computer stalled for longer than the board watchdog; close other "
+                      "heavy programs"),
+    (LinkLost, "the adapter went away: replug it (and check the port name)"),
+)
+
+
+def stop_advice(stop: SafetyStop) -> str:
+    """The stop's message plus what to do about it before ``--resume``."""
+    todo = next((text for kind, text in _ADVICE if isinstance(stop, kind)),
+                "inspect the arm")
+    return f"{stop}. The arm was relaxed. What to do: {todo}; then rerun with --resume."
