@@ -82,11 +82,11 @@ class ArmState:
 class _Rx:
     """Receive bookkeeping of one board: latest frame, freshness, loss and CRC failures."""
 
-    def __init__(self, window: int) -> None:
+    def __init__(self) -> None:
         self.msg: Status | JointStatus | None = None
         self.time = -np.inf
         self.fresh = False
-        self.gaps: collections.deque[int] = collections.deque(maxlen=window)
+        self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
         self.corrupt: collections.deque[float] = collections.deque()
 
     def update(self, msg: Status | JointStatus, now: float) -> None:
@@ -94,12 +94,16 @@ class _Rx:
             gap = (msg.counter - self.msg.counter - 1) & 0xF
             if gap == 15:  # same counter again: a repeated frame, not news
                 return
-            self.gaps.append(gap)
+            self.gaps.append((now, gap))
         self.msg, self.time, self.fresh = msg, now, True
 
-    def loss(self) -> float:
-        lost = sum(self.gaps)
-        return lost / (lost + len(self.gaps)) if self.gaps else 0.0
+    def loss(self, now: float, window_s: float) -> tuple[float, int]:
+        """(fraction of frames lost, frames received) over the last ``window_s``."""
+        while self.gaps and now - self.gaps[0][0] > window_s:
+            self.gaps.popleft()
+        lost = sum(gap for _, gap in self.gaps)
+        n = len(self.gaps)
+        return (lost / (lost + n) if n else 0.0), n
 
     def corrupt_in_last_second(self, now: float) -> int:
         while self.corrupt and now - self.corrupt[0] > 1.0:
@@ -130,9 +134,8 @@ class ArmDriver:
         self.f_floor = np.array([s.f_floor for s in specs], float)
         self.f_max = self.limits.ceilings(np.array([s.f_max for s in specs], float))
         self.zero_counts = np.zeros(len(specs))
-        window = self.limits.loss_window
-        self._rx = [_Rx(window) for _ in specs]
-        self._joint_rx = [_Rx(window) for _ in robot.joints] if robot.joint_encoders else []
+        self._rx = [_Rx() for _ in specs]
+        self._joint_rx = [_Rx() for _ in robot.joints] if robot.joint_encoders else []
         self._tx_counter = 0
         self._last: list[Message] | None = None
         self.tripped: SafetyStop | None = None
@@ -152,7 +155,7 @@ class ArmDriver:
     def _configure(self, timeout_s: float) -> None:
         """Send limits, wait for every board to answer configured, then relax (safe start)."""
         lim = self.limits
-        ceiling = self._raw(self.f_max)
+        ceiling = self._raw(lim.tension_margin * self.f_max)  # commands stop at f_max
         relax = self._raw(lim.relax_targets(self.f_floor))
         self._send_all([SetLimits(b, 0, lim.watchdog_s, int(ceiling[i]), int(relax[i]),
                                   lim.board_thermal_limit_c)
@@ -216,9 +219,10 @@ class ArmDriver:
                                        f"{lim.silent_after_s} s)", **where))
             if (n := rx.corrupt_in_last_second(now)) > lim.corrupt_per_s:
                 self._trip(CorruptFrames(f"{n} status frames failed their CRC in 1 s", **where))
-            if len(rx.gaps) >= lim.loss_window // 2 and rx.loss() > lim.max_loss:
-                self._trip(FramesDropped(f"{rx.loss():.0%} of status frames lost (counter "
-                                         f"gaps over the last {len(rx.gaps)})", **where))
+            loss, n = rx.loss(now, lim.loss_window_s)
+            if n >= 4 and loss > lim.max_loss:
+                self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
+                                         f"{lim.loss_window_s} s (counter gaps)", **where))
             msg = rx.msg
             if (found := fault_stop(msg.faults)) is not None:
                 self._trip(found[0](found[1], **where))

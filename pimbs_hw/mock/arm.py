@@ -38,7 +38,7 @@ from pimbs_hw.transport import CanTransport, PtyMaster, SerialTransport, Transpo
 from pimbs_hw.transport.base import CAN_ERR_BUSOFF
 
 log = logging.getLogger(__name__)
-OVERHEAT_RATE_C_PER_S = 150.0  # injected heating: past any limit within about half a second
+OVERHEAT_RATE_C_PER_S = 400.0  # injected thermal runaway: past any limit within 0.15 s
 DROP_PROBABILITY = 0.75
 _ANGLE_MIN, _ANGLE_MAX = signal_range(JointStatus, "angle_rad")
 
@@ -55,7 +55,7 @@ class MockSnapshot:
     relax_tension: np.ndarray  # N, each board's relax target as its loadcell reads it
     active_faults: tuple[str, ...]
 
-    def relaxed(self, tol: float = 3.0) -> np.ndarray:
+    def relaxed(self, tol: float = 1.0) -> np.ndarray:
         """Per muscle: board in relax mode and tension near its relax target."""
         return (np.array([m == "relax" for m in self.modes])
                 & (np.abs(self.tension - self.relax_tension) < tol))

@@ -1,0 +1,180 @@
+"""Arm driver against the simulated boards: virtual CAN bus and pty serial, safe exits."""
+
+from __future__ import annotations
+
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from calibration.arm_model import ArmModel
+from calibration.description import load_robot
+from calibration.effects import parse_effect
+from pimbs_hw import ArmDriver, PortError, SafetyLimits, open_arm
+from pimbs_hw.mock import MockArm
+from pimbs_hw.safety import TensionLimit, WatchdogExpired
+from pimbs_hw.transport import CanTransport
+
+ROBOT = "two-link-4-muscle"
+SPEED = 10.0  # settling time constant 7.5 ms
+
+
+def wait_until(predicate, timeout: float = 2.0, period: float = 0.02) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(period)
+    return predicate()
+
+
+def channel() -> str:
+    return f"virtual:test-{uuid.uuid4().hex}"
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(ROBOT)
+
+
+@pytest.mark.parametrize("port", ["virtual", "pty"])
+def test_tension_mode_reads_back_through_the_protocol(port, robot):
+    with open_arm(port, robot, speed=SPEED, seed=1) as (driver, mock):
+        state = driver.read_state()
+        assert state.muscles == ("m0", "m1", "m2", "m3") and state.theta.shape == (2,)
+        driver.command("tension", [30.0, 40.0, 30.0, 40.0])
+        state = driver.dwell(0.25)
+        truth = mock.snapshot()
+        assert state.tension == pytest.approx([30, 40, 30, 40], abs=1.5)
+        assert truth.tension == pytest.approx([30, 40, 30, 40], abs=0.5)
+        # lengths: encoder counts of the true length, so exact up to one count
+        assert np.abs(state.length - truth.length).max() <= 1.5 / 108650
+        assert state.theta == pytest.approx(truth.theta, abs=1e-3)
+        assert state.fresh.all() and (state.age < 0.05).all()
+        assert all(not f for f in state.faults)
+
+
+def test_position_mode_settles_to_the_model_equilibrium(robot):
+    model = ArmModel(robot)
+    theta = np.array([0.2, -0.15])
+    f = model.tension_distribution(theta, np.full(4, 30.0))
+    lengths = model.length(theta, f)
+    with open_arm("virtual", robot, speed=SPEED) as (driver, mock):
+        driver.command("length", lengths)
+        state = driver.dwell(0.3)
+        assert mock.snapshot().theta == pytest.approx(theta, abs=2e-3)
+        assert state.theta == pytest.approx(theta, abs=2e-3)
+        assert state.tension == pytest.approx(f, abs=0.05 * f.max())
+        assert state.length == pytest.approx(lengths, abs=2e-5)
+
+
+def test_mixed_modes_and_zero(robot):
+    with open_arm("virtual", robot, speed=SPEED) as (driver, mock):
+        state = driver.dwell(0.1)
+        driver.command(["length", "tension", "relax", "tension"],
+                       [state.length[0], 50.0, np.nan, 50.0])
+        state = driver.dwell(0.25)
+        assert mock.snapshot().modes == ("position", "tension", "relax", "tension")
+        assert state.tension[1] == pytest.approx(50, abs=1.5)
+        driver.zero()
+        assert driver.read_state().length == pytest.approx(np.zeros(4), abs=3e-5)
+
+
+def test_stale_data_is_flagged():
+    with open_arm("virtual", ROBOT, speed=SPEED) as (driver, _):
+        driver.read_state()
+        again = driver.read_state(timeout=0.0)  # status frames come every 20 ms
+        assert not again.fresh.any() and (again.age >= 0).all()
+        assert driver.read_state(timeout=0.1).fresh.all()
+
+
+def test_tension_commands_clamped_to_ceiling_and_floor(robot):
+    limits = SafetyLimits(tension_ceiling=80.0)
+    with open_arm("virtual", robot, speed=SPEED, limits=limits) as (driver, mock):
+        driver.command("tension", [1e4, 0.0, -5.0, 60.0])
+        state = driver.dwell(0.25)
+        assert state.tension == pytest.approx([80, 10, 10, 60], abs=1.5)
+
+
+def test_derating_with_temperature():
+    limits = SafetyLimits(derate_start_c=60, fault_c=80)
+    f = limits.clamp_tension(np.full(3, 500.0), np.full(3, 10.0), np.full(3, 600.0),
+                             np.array([25.0, 70.0, 79.9]))
+    assert f == pytest.approx([500.0, 305.0, 10.0 + 590 * 0.1 / 20])
+
+
+def test_limit_breaking_length_command_trips_and_relaxes(robot):
+    limits = SafetyLimits(tension_ceiling=100.0)
+    with open_arm("virtual", robot, speed=SPEED, limits=limits) as (driver, mock):
+        state = driver.dwell(0.1)
+        driver.command("length", state.length - 0.006)  # exp(1000 * 0.006) ~ 400 N
+        with pytest.raises(TensionLimit) as err:
+            driver.dwell(0.5)
+        assert err.value.muscle in driver.muscles
+        assert f"board {err.value.board_id}" in str(err.value)
+        assert wait_until(lambda: mock.snapshot().relaxed().all())
+        with pytest.raises(TensionLimit):  # tripped: later commands refused
+            driver.command("tension", 20.0)
+
+
+@pytest.mark.parametrize("ending", ["normal", "exception", "ctrl-c"])
+def test_every_exit_relaxes_the_arm(ending, robot):
+    link = channel()
+    with MockArm(robot, link, speed=SPEED) as mock:
+        with pytest.raises((RuntimeError, KeyboardInterrupt)) if ending != "normal" else _null():
+            with ArmDriver(CanTransport(link), robot) as driver:
+                driver.command("tension", 150.0)
+                driver.dwell(0.15)
+                assert mock.snapshot().tension == pytest.approx(np.full(4, 150.0), abs=2)
+                if ending == "exception":
+                    raise RuntimeError("collection bug")
+                if ending == "ctrl-c":
+                    raise KeyboardInterrupt
+        assert wait_until(lambda: mock.snapshot().relaxed().all())
+        assert mock.snapshot().tension == pytest.approx(np.full(4, 10.0), abs=1)  # not slack
+
+
+class _null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_board_watchdog_relaxes_when_the_host_stops_sending(robot):
+    with open_arm("virtual", robot, speed=SPEED,
+                  limits=SafetyLimits(watchdog_s=0.15, silent_after_s=1.0)) as (driver, mock):
+        driver.command("tension", 120.0)
+        driver.dwell(0.1)
+        assert not mock.snapshot().relaxed().any()
+        time.sleep(0.3)  # host "hangs": no commands, no background feeding
+        assert mock.snapshot().relaxed().all()
+        with pytest.raises(WatchdogExpired, match=r"muscle m\d \(board \d\)"):
+            driver.read_state()
+
+
+def test_concealed_effect_hook_changes_readings(robot):
+    effect = parse_effect("tension_offset:15,muscles=m1")
+    with open_arm("virtual", robot, speed=SPEED, effect=effect) as (driver, mock):
+        driver.command("tension", 40.0)
+        state = driver.dwell(0.25)
+        assert state.tension == pytest.approx(np.full(4, 40.0), abs=1.5)  # boards servo reading
+        assert mock.snapshot().tension == pytest.approx([40, 25, 40, 40], abs=0.5)
+
+
+def test_wrong_ports_are_clear_errors(robot):
+    with pytest.raises(PortError, match="pimbsnocan3.*--port virtual"):
+        with open_arm("pimbsnocan3", robot):
+            pass
+    with pytest.raises(ValueError, match="only on the simulated arm"):
+        with open_arm("can0", robot, faults=["overheat:m1"]):
+            pass
+
+
+def test_no_boards_on_the_bus_is_a_clear_error(robot):
+    from pimbs_hw.safety import BoardSilent
+
+    with pytest.raises(BoardSilent, match="m0 .*m3.*--port virtual"):
+        ArmDriver(CanTransport(channel()), robot, connect_timeout_s=0.2)
