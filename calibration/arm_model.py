@@ -45,6 +45,23 @@ def sample_poses(joint_range: np.ndarray, n: int, rng: np.random.Generator) -> n
     return rng.uniform(joint_range[:, 0], joint_range[:, 1], size=(n, len(joint_range)))
 
 
+@dataclass
+class _Paths:
+    """Wire geometry at one pose (see ``ArmModel._paths``)."""
+
+    seg_len: np.ndarray  # (S,) all segments
+    u: np.ndarray  # (S, 3) unit directions
+    jp: np.ndarray | None = None  # (E, 3, N) Jacobians of crossing-segment end points
+    omega: np.ndarray | None = None  # (3, N) joint axes in world
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product along axis 1 (broadcasting); np.cross is slow for many small arrays."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+
+
 def _batched(fn, theta, n_joints: int) -> np.ndarray:
     """Apply a single-pose function to (N,) or (B, N) input, stacking along the batch axis."""
     theta = np.asarray(theta, dtype=np.float64)
@@ -96,47 +113,95 @@ class ArmModel:
         self._joint_ids = sorted(set(parents))
         self._via_joint = np.array([self._joint_ids.index(p) for p in parents])
         self._via_local = np.array(points, dtype=np.float64)  # (V, 3) in parent-joint frame
+        # Which actuated joints move each via point, and which joint is nearer the root.
+        self._via_moves = np.array([[j in model.supports[p] for j in jids] for p in parents],
+                                   dtype=np.float64)  # (V, N)
+        outer = np.array([[a in model.supports[b] for b in jids] for a in jids])  # a <= b
+        n = len(jids)
+        self._pair_inner = np.where(outer, np.arange(n)[:, None], np.arange(n)[None, :])
+        self._pair_outer = np.where(outer, np.arange(n)[None, :], np.arange(n)[:, None])
         owner = np.array(owner)
         # Segment k joins via point k and k+1 of the same muscle.
         seg_a = np.flatnonzero(owner[:-1] == owner[1:])
         self._seg_a, self._seg_b = seg_a, seg_a + 1
+        self._seg_owner = owner[seg_a]
         self._seg_muscle = np.zeros((self.n_muscles, len(seg_a)))
         self._seg_muscle[owner[seg_a], np.arange(len(seg_a))] = 1.0
+        # Segments whose ends ride on different joints: the only ones that change length.
+        via_joint = np.array(parents)
+        self._moving = np.flatnonzero(via_joint[seg_a] != via_joint[seg_a + 1])
+        self._moving_muscle = self._seg_muscle[:, self._moving]
+        self._end_points, ends = np.unique(np.concatenate([seg_a[self._moving],
+                                                           seg_a[self._moving] + 1]),
+                                           return_inverse=True)
+        self._moving_a, self._moving_b = np.split(ends, 2)
 
     def _q(self, theta: np.ndarray) -> np.ndarray:
         q = pin.neutral(self._model)
         q[self._iq] = theta
         return q
 
-    def _length_jacobian(self, theta: np.ndarray, jacobian: bool = True
-                         ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Absolute path lengths (M,) and, optionally, their analytic Jacobian (M, N).
+    def _paths(self, theta: np.ndarray, jacobian: bool = True) -> _Paths:
+        """Via points, segment lengths/directions and (if asked) point Jacobians at theta.
 
-        The Jacobian of a via point p on a body is J_lin + omega x p with the joint Jacobian
-        taken in the WORLD frame; a segment's length changes by u^T (J_b - J_a).
+        One pinocchio pass. A point p carried by revolute joint k moves with
+        J_lin[:, k] + omega_k x p, where the WORLD-frame joint Jacobian's linear part is the
+        velocity of the point at the origin. Jacobians are kept only for the endpoints of
+        segments that cross a joint (the others have constant length).
         """
         model, data = self._model, self._data
         q = self._q(theta)
         if jacobian:
-            pin.computeJointJacobians(model, data, q)
+            pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
         else:
             pin.forwardKinematics(model, data, q)
-        rot = np.array([data.oMi[j].rotation for j in self._joint_ids])
-        trans = np.array([data.oMi[j].translation for j in self._joint_ids])
-        r = rot[self._via_joint]
-        p = np.einsum("vij,vj->vi", r, self._via_local) + trans[self._via_joint]
+        rot = np.array([data.oMi[j].rotation for j in self._joint_ids])[self._via_joint]
+        trans = np.array([data.oMi[j].translation for j in self._joint_ids])[self._via_joint]
+        p = np.einsum("vij,vj->vi", rot, self._via_local) + trans
         d = p[self._seg_b] - p[self._seg_a]
-        seg_len = np.linalg.norm(d, axis=1)
-        h = self._seg_muscle @ seg_len
-        if not jacobian:
-            return h, None
-        jac = np.array([pin.getJointJacobian(model, data, j, pin.ReferenceFrame.WORLD)
-                        for j in self._joint_ids])[:, :, self._iv]  # (U, 6, N)
-        jv = jac[self._via_joint]
-        jp = jv[:, :3, :] + np.cross(jv[:, 3:, :], p[:, :, None], axis=1)  # (V, 3, N)
-        u = d / seg_len[:, None]
-        dseg = np.einsum("si,sin->sn", u, jp[self._seg_b] - jp[self._seg_a])
-        return h, self._seg_muscle @ dseg
+        seg_len = np.sqrt(np.einsum("si,si->s", d, d))
+        paths = _Paths(seg_len=seg_len, u=d / seg_len[:, None])
+        if jacobian:
+            J = data.J[:, self._iv]
+            pe = p[self._end_points]
+            paths.omega = J[3:]
+            paths.jp = (J[None, :3] + _cross(J[None, 3:], pe[:, :, None])) \
+                * self._via_moves[self._end_points][:, None, :]  # (E, 3, N)
+        return paths
+
+    def _length_jacobian(self, theta: np.ndarray, jacobian: bool = True
+                         ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Absolute path lengths (M,) and, optionally, their analytic Jacobian (M, N)."""
+        paths = self._paths(theta, jacobian)
+        return self._seg_muscle @ paths.seg_len, (self._jacobian(paths) if jacobian else None)
+
+    def _jacobian(self, paths: _Paths) -> np.ndarray:
+        """G (M, N): a crossing segment's length changes by u^T (J_b - J_a)."""
+        u = paths.u[self._moving]
+        dv = paths.jp[self._moving_b] - paths.jp[self._moving_a]
+        return self._moving_muscle @ np.einsum("si,sin->sn", u, dv)
+
+    def _length_hessian(self, theta: np.ndarray, weight: np.ndarray,
+                        paths: _Paths | None = None) -> np.ndarray:
+        """sum_i weight_i d2h_i/dtheta2 (N, N), analytic.
+
+        The equilibrium solver needs it for the tension-times-path-curvature part of the
+        stiffness. For a segment, d2L = (dv^T dv - (u^T dv)^T (u^T dv)) / L + u^T d2(p_b - p_a),
+        and for a point moved by joints k (nearer the root) and l: d2p = omega_k x J_l.
+        """
+        paths = self._paths(theta) if paths is None else paths
+        u, seg_len = paths.u[self._moving], paths.seg_len[self._moving]
+        dv = paths.jp[self._moving_b] - paths.jp[self._moving_a]  # (S, 3, N)
+        udv = np.einsum("si,sin->sn", u, dv)
+        w = weight[self._seg_owner[self._moving]]
+        curv = np.einsum("sin,sim->snm", dv, dv) - udv[:, :, None] * udv[:, None, :]
+        H = np.einsum("s,snm->nm", w / seg_len, curv)
+        # d2p[e, :, k, l] = omega_inner x J_outer, zero unless both joints move the point.
+        d2p = _cross(paths.omega[:, self._pair_inner][None], paths.jp[:, :, self._pair_outer])
+        moves = self._via_moves[self._end_points]
+        d2p = d2p * (moves[:, :, None] * moves[:, None, :])[:, None]
+        H += np.einsum("s,si,sinm->nm", w, u, d2p[self._moving_b] - d2p[self._moving_a])
+        return 0.5 * (H + H.T)
 
     # ----------------------------------------------------------------- geometry and gravity
     def h_geom(self, theta) -> np.ndarray:

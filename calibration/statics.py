@@ -3,13 +3,15 @@
 The arm settles where gravity potential + elastic potentials (+ f_cmd * h_geom for
 tension-controlled muscles, whose motor keeps the tension constant) is minimal within the URDF
 limits. With K = 1000 the elastic terms are exponentially stiff, so a first-order method
-crawls; we use projected Newton with an exact Gauss-Newton elastic Hessian, pinocchio's
-gravity derivative, a finite-difference curvature term for the wire paths, and a backtracking
-line search on the energy. Warm-started from the previous pose it converges in a few steps.
+crawls; we use projected Newton with the exact Hessian (elastic stiffness, pinocchio's
+gravity derivative, tension times wire-path curvature) made positive definite, and a
+backtracking line search on the energy. Warm-started from the previous pose it converges in a
+few steps.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,7 +20,21 @@ if TYPE_CHECKING:
     from calibration.arm_model import ArmModel, Equilibrium
 
 _EXP_CAP = 60.0  # cap K*dn so far-off trial points give a huge but finite energy
-_FD_STEP = 1e-6  # rad, for the wire-path curvature term of the Hessian
+
+
+@dataclass
+class _State:
+    """Everything known at one trial pose: energy, gradient and what the Hessian reuses."""
+
+    theta: np.ndarray
+    energy: float
+    grad: np.ndarray  # g + G^T f
+    g: np.ndarray
+    G: np.ndarray
+    f: np.ndarray
+    h: np.ndarray
+    dn: np.ndarray
+    paths: object
 
 
 class _Problem:
@@ -34,32 +50,25 @@ class _Problem:
         kdn = np.minimum(self.K * np.maximum(dn, 0.0), _EXP_CAP)
         return np.where(self.is_length, np.expm1(kdn), self.command), dn
 
-    def energy(self, theta: np.ndarray) -> float:
-        h = self.arm._length_jacobian(theta, jacobian=False)[0] - self.arm._h0
+    def evaluate(self, theta: np.ndarray) -> _State:
+        """Energy and gradient in one kinematics pass (line-search trials are usually kept)."""
+        arm = self.arm
+        paths = arm._paths(theta)
+        h = arm._seg_muscle @ paths.seg_len - arm._h0
         f, dn = self.tension(h)
         # P(dn) = expm1(K dn)/K - dn for dn > 0: its derivative is the tension f.
         elastic = np.where(self.is_length & (dn > 0), f / self.K - np.maximum(dn, 0.0), 0.0)
-        const = np.where(self.is_length, 0.0, self.command * h)
-        return self.arm.potential_energy(theta) + float(elastic.sum() + const.sum())
+        held = np.where(self.is_length, 0.0, self.command * h)
+        energy = arm.potential_energy(theta) + float(elastic.sum() + held.sum())
+        G = arm._jacobian(paths)
+        g = arm._gravity(theta)
+        return _State(theta, energy, g + G.T @ f, g, G, f, h, dn, paths)
 
-    def gradient(self, theta: np.ndarray):
-        """Gradient g + G^T f, plus the pieces the Hessian and the result need."""
-        h, G = self.arm._length_jacobian(theta)
-        h = h - self.arm._h0
-        f, dn = self.tension(h)
-        g = self.arm._gravity(theta)
-        return g + G.T @ f, g, G, f, h, dn
-
-    def hessian(self, theta: np.ndarray, G: np.ndarray, f: np.ndarray, dn: np.ndarray
-                ) -> np.ndarray:
-        stiff = np.where(self.is_length & (dn > 0), self.K * (f + 1.0), 0.0)
-        H = self.arm._gravity_derivative(theta) + G.T @ (stiff[:, None] * G)
-        # sum_i f_i d2h_i/dtheta2 by forward differences of G^T f at fixed f.
-        base = G.T @ f
-        for j in range(len(theta)):
-            step = theta.copy()
-            step[j] += _FD_STEP
-            H[:, j] += (self.arm._length_jacobian(step)[1].T @ f - base) / _FD_STEP
+    def hessian(self, s: _State) -> np.ndarray:
+        """dg/dtheta + G^T diag(K (f + 1)) G (stretched springs) + sum_i f_i d2h_i."""
+        stiff = np.where(self.is_length & (s.dn > 0), self.K * (s.f + 1.0), 0.0)
+        H = self.arm._gravity_derivative(s.theta) + s.G.T @ (stiff[:, None] * s.G)
+        H += self.arm._length_hessian(s.theta, s.f, s.paths)
         return 0.5 * (H + H.T)
 
 
@@ -92,7 +101,7 @@ def _geometric_start(problem: _Problem, theta: np.ndarray, lo, hi) -> np.ndarray
 
 
 def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: int = 100,
-                      atol: float = 1e-10) -> Equilibrium:
+                      atol: float = 1e-9) -> Equilibrium:
     """Projected-Newton minimisation of the static energy; see ``ArmModel.equilibrium``."""
     from calibration.arm_model import Equilibrium
 
@@ -108,35 +117,34 @@ def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: in
         theta = np.clip(np.asarray(theta0, dtype=np.float64), lo, hi)
 
     converged = False
-    energy = problem.energy(theta)
+    state = problem.evaluate(theta)
     for _ in range(max_iter):
-        grad, g, G, f, h, dn = problem.gradient(theta)
+        theta, grad = state.theta, state.grad
         free = ~(((theta <= lo) & (grad > 0)) | ((theta >= hi) & (grad < 0)))
-        scale = np.linalg.norm(g) + np.abs(G).T @ np.abs(f)
-        if np.linalg.norm(grad[free]) <= atol + 1e-12 * np.max(scale):
+        scale = np.linalg.norm(state.g) + np.abs(state.G).T @ np.abs(state.f)
+        if np.linalg.norm(grad[free]) <= atol + 1e-11 * np.max(scale):
             converged = True
             break
-        H = problem.hessian(theta, G, f, dn)[np.ix_(free, free)]
+        H = problem.hessian(state)[np.ix_(free, free)]
         w, V = np.linalg.eigh(H)
         w = np.maximum(np.abs(w), 1e-9 * max(np.abs(w).max(), 1e-9))  # saddle-free Newton
         step = np.zeros_like(theta)
         step[free] = -V @ ((V.T @ grad[free]) / w)
         alpha = 1.0
         while True:
-            trial = np.clip(theta + alpha * step, lo, hi)
-            e_trial = problem.energy(trial)
+            trial = problem.evaluate(np.clip(theta + alpha * step, lo, hi))
             # Armijo, or (near the optimum) a change lost in floating-point noise.
-            if (e_trial <= energy + 1e-4 * grad @ (trial - theta)
-                    or abs(e_trial - energy) <= 1e-13 * (1.0 + abs(energy))):
+            if (trial.energy <= state.energy + 1e-4 * grad @ (trial.theta - theta)
+                    or abs(trial.energy - state.energy) <= 1e-13 * (1.0 + abs(state.energy))):
                 break
             alpha *= 0.5
             if alpha < 1e-10:
                 break
-        if np.array_equal(trial, theta):
+        if np.array_equal(trial.theta, theta):
             break
-        theta, energy = trial, e_trial
+        state = trial
 
-    grad, g, G, f, h, dn = problem.gradient(theta)
+    f, h = state.f, state.h
     length = np.where(is_length, command, h - arm.stretch(f))
-    return Equilibrium(theta=theta, tension=f, length=length, converged=converged,
-                       residual=float(np.linalg.norm(grad)))
+    return Equilibrium(theta=state.theta, tension=f, length=length, converged=converged,
+                       residual=float(np.linalg.norm(state.grad)))

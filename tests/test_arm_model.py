@@ -208,3 +208,12 @@ def test_sample_poses_in_range(arm):
     theta = _poses(arm, 200)
     assert theta.shape == (200, arm.n_joints)
     assert np.all(theta >= arm.joint_range[:, 0]) and np.all(theta <= arm.joint_range[:, 1])
+
+
+def test_length_hessian_matches_finite_differences(arm):
+    # The equilibrium solver's Newton steps rely on this curvature term being exact.
+    rng = np.random.default_rng(7)
+    theta, weight, eps = _poses(arm, 1, seed=7)[0], rng.uniform(0, 300, arm.n_muscles), 1e-6
+    fd = np.stack([(arm.muscle_jacobian(theta + eps * e) - arm.muscle_jacobian(theta - eps * e)).T
+                   @ weight / (2 * eps) for e in np.eye(arm.n_joints)], axis=1)
+    np.testing.assert_allclose(arm._length_hessian(theta, weight), fd, atol=1e-7)
