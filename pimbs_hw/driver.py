@@ -285,7 +285,7 @@ class ArmDriver:
                              f"{len(self.muscles)} of them, got {mode!r}")
         return [_MODES[n] for n in names]
 
-    def command(self, mode: str | Sequence[str], values) -> None:
+    def command(self, mode: str | Sequence[str], values=None) -> None:
         """Command every muscle: "length" (m), "tension" (N, clamped) or "relax" (ignored).
 
         Feeds the board watchdogs. Tension commands are held between ``f_floor`` and the
@@ -295,7 +295,8 @@ class ArmDriver:
         self._pump(0.0)
         self._check(time.monotonic())
         kinds = self._modes(mode)
-        values = np.broadcast_to(np.asarray(values, float), (len(self.muscles),))
+        values = np.broadcast_to(np.asarray(np.nan if values is None else values, float),
+                                 (len(self.muscles),))
         temperature = np.array([rx.msg.temperature_c for rx in self._rx])
         tension = self.limits.clamp_tension(np.nan_to_num(values, nan=0.0), self.f_floor,
                                             self.f_max, temperature)

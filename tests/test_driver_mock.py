@@ -178,3 +178,16 @@ def test_no_boards_on_the_bus_is_a_clear_error(robot):
 
     with pytest.raises(BoardSilent, match="m0 .*m3.*--port virtual"):
         ArmDriver(CanTransport(channel()), robot, connect_timeout_s=0.2)
+
+
+def test_mockbus_command_serves_a_pty():
+    from click.testing import CliRunner
+
+    from cli.mockbus import command
+
+    result = CliRunner().invoke(command, ["--serial", "--duration", "0.3", "--fault",
+                                          "overheat:m1@0.1s"])
+    assert result.exit_code == 0, result.output
+    assert "connect with: pimbs collect --port /dev/" in result.output
+    bad = CliRunner().invoke(command, ["--serial", "--duration", "0.1", "--fault", "melt:m1"])
+    assert bad.exit_code != 0 and "unknown fault kind 'melt'" in bad.output

@@ -22,17 +22,19 @@ ROBOT = "two-link-4-muscle"
 LIMITS = SafetyLimits(watchdog_s=0.15)
 
 
-@pytest.mark.parametrize("spec, stop", [
-    ("silent-board:m1@2", BoardSilent),
-    ("drop-frames:m2@2", FramesDropped),
-    ("corrupt-frames:m3@2", CorruptFrames),
-    ("overheat:m0@2", Overheat),
-    ("saturate-loadcell:m1@2", LoadcellSaturated),
-    ("bus-off@2", BusOff),
+@pytest.mark.parametrize("port, spec, stop", [
+    ("virtual", "silent-board:m1@2", BoardSilent),
+    ("virtual", "drop-frames:m2@2", FramesDropped),
+    ("virtual", "corrupt-frames:m3@2", CorruptFrames),
+    ("virtual", "overheat:m0@2", Overheat),
+    ("virtual", "saturate-loadcell:m1@2", LoadcellSaturated),
+    ("virtual", "bus-off@2", BusOff),
+    ("pty", "corrupt-frames:m2@1", CorruptFrames),
+    ("pty", "bus-off@1", BusOff),
 ])
-def test_fault_gives_named_stop_and_relaxed_arm(spec, stop):
+def test_fault_gives_named_stop_and_relaxed_arm(port, spec, stop):
     fault = parse_fault(spec)
-    with open_arm("virtual", ROBOT, faults=[spec], speed=SPEED, limits=LIMITS) as (driver, mock):
+    with open_arm(port, ROBOT, faults=[spec], speed=SPEED, limits=LIMITS) as (driver, mock):
         with pytest.raises(stop) as err:
             for sample in range(10):
                 mock.set_sample(sample)

@@ -49,10 +49,10 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
                 speed=speed))
         except SafetyStop as stop:
             raise ConnectError(
-                f"no working arm on port {port!r}: {stop}. Is the arm powered and the port "
-                f"right, and does --robot {robot.name} describe the boards on this bus "
-                f"(board ids {', '.join(str(m.board_id) for m in robot.muscles)})? "
-                "For the simulated arm use --port virtual") from stop
+                f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
+                f"the port is right, check that --robot {robot.name} describes the boards on "
+                f"this bus (board ids {', '.join(str(m.board_id) for m in robot.muscles)})"
+            ) from stop
         yield DriverLink(driver, mock)
 
 
