@@ -176,6 +176,11 @@ class ArmDriver:
                                f"{hint}", **self._where(missing[0]))
             self._trip(stop)
         self.relax()
+        # wait for the answers to that relax: faults latched in an earlier session (a host
+        # that crashed) are cleared by it, and must not be read back from older frames
+        for rx in self._rx:
+            rx.fresh = False
+        self._pump(max(0.05, deadline - time.monotonic()))
 
     # -- receive ---------------------------------------------------------------------------
     def _on_frame(self, frame: Frame) -> None:

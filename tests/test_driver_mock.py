@@ -191,3 +191,17 @@ def test_mockbus_command_serves_a_pty():
     assert "connect with: pimbs collect --port /dev/" in result.output
     bad = CliRunner().invoke(command, ["--serial", "--duration", "0.1", "--fault", "melt:m1"])
     assert bad.exit_code != 0 and "unknown fault kind 'melt'" in bad.output
+
+
+def test_reconnect_after_a_crashed_host(robot):
+    link = channel()
+    limits = SafetyLimits(watchdog_s=0.1)
+    with MockArm(robot, link, speed=SPEED) as mock:
+        crashed = ArmDriver(CanTransport(link), robot, limits)
+        crashed.command("tension", 80.0)
+        crashed.transport.close()  # the host dies: no relax sent
+        assert wait_until(lambda: mock.snapshot().relaxed().all())  # board watchdogs
+        with ArmDriver(CanTransport(link), robot, limits) as driver:  # next session is clean
+            assert not any(driver.read_state().faults)
+            driver.command("tension", 30.0)
+            assert driver.dwell(0.2).tension == pytest.approx(np.full(4, 30.0), abs=1.5)

@@ -1,10 +1,11 @@
 """The collection loop: per sample, move to the pose, remove slack, settle, read, write.
 
-Order of events for sample i (see ``plan.Target``): every muscle length-controlled at the
-geometric length of a low pretension (the arm moves there), then the load-bearing muscles held
-in length and the others tension-controlled at the QP tensions (slack removed, pose kept),
-wait until settled, read, and append one row. The row is on disk (atomically) before the next
-pose is commanded, so an interruption of any kind loses at most the sample in progress.
+Order of events for sample i (see ``plan.Target``): every muscle length-controlled, ramped
+to the geometric length of a low pretension (the arm moves there; ``move.py``), settle; then
+the load-bearing muscles held in length and the others tension-controlled, ramped to the QP
+tensions (slack removed, pose kept), settle, read, and append one row. The row is on disk
+(atomically) before the next pose is commanded, so an interruption of any kind loses at most
+the sample in progress.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from calibration.arm_model import ArmModel, InfeasiblePoseError
 from calibration.recording import RecordingWriter
 from calibration.simulate import approach_direction
 from pimbs_hw.collection.estimate import estimate_theta
-from pimbs_hw.collection.link import ArmLink
+from pimbs_hw.collection.link import ArmLink, Reading
+from pimbs_hw.collection.move import MoveConfig, move_commands, ramp, slack_commands
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 
@@ -90,16 +92,18 @@ class Collector:
 
     def __init__(self, link: ArmLink, model: ArmModel, plan: CollectionPlan,
                  writer: RecordingWriter, start: int, settle: SettleConfig,
-                 reporter: Reporter | None = None,
+                 reporter: Reporter | None = None, move: MoveConfig | None = None,
                  now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC)) -> None:
         self.link, self.model, self.plan, self.writer = link, model, plan, writer
         self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
+        self.move = move or MoveConfig()
         self.summary = Summary(path=str(writer.path), total=plan.n_samples, start=start,
                                next_sample=start, already=writer.n_rows)
 
     def run(self) -> Summary:
         """Collect samples ``start .. total-1``; exceptions propagate with the file intact."""
-        prev_length = self.link.read().length  # approach of the first pose: from where it is
+        reading = self.link.read()  # the first pose is approached from where the arm is
+        theta = self._theta(reading, np.zeros(self.model.n_joints))
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
             try:
@@ -109,22 +113,25 @@ class Collector:
                 self._warn(f"sample {i} skipped: {exc}")
                 self.summary.next_sample = i + 1
                 continue
-            muscles = self.model.muscles
-            hold_until_settled(self.link, "length", target.approach_length, self.settle,
-                               muscles)
+            muscles, poll = self.model.muscles, self.move.poll
+            ramp(self.link, "length",
+                 move_commands(self.model, reading, theta, target, self.move), poll)
+            moved = hold_until_settled(self.link, "length", target.approach_length,
+                                       self.settle, muscles)
+            ramp(self.link, target.hold_mode, slack_commands(moved.reading, target, self.move),
+                 poll)
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
-            row = self._row(i, target.theta, held, prev_length)
+            row = self._row(i, target.theta, held, reading.length)
             self.writer.append(row)
-            prev_length = held.reading.length
+            reading, theta = held.reading, row["theta"]
             self._account(i, held, row)
         return self.summary
 
     def _row(self, i: int, theta_command: np.ndarray, held: Settled,
              prev_length: np.ndarray) -> dict[str, Any]:
         r = held.reading
-        theta = r.theta if r.theta is not None else estimate_theta(
-            self.model, r.length, r.tension, theta_command)
+        theta = self._theta(r, theta_command)
         return {"sample": i, "time": np.datetime64(self.now().replace(tzinfo=None), "us"),
                 "theta": theta, "theta_command": theta_command, "tension": r.tension,
                 "length": r.length, "temperature": r.temperature,
@@ -132,6 +139,12 @@ class Collector:
                 "tau_gravity": self.model.gravity_torque(theta),
                 # extra columns: how the sample settled (data quality, kept by all tools)
                 "settled": bool(held.settled), "settle_s": float(held.elapsed)}
+
+    def _theta(self, r: Reading, guess: np.ndarray) -> np.ndarray:
+        """Joint encoders where the robot has them, else the model's estimate."""
+        if r.theta is not None:
+            return r.theta
+        return estimate_theta(self.model, r.length, r.tension, guess)
 
     def _account(self, i: int, held: Settled, row: dict[str, Any]) -> None:
         s = self.summary

@@ -60,6 +60,7 @@ class SimBoard:
             self.ceiling_raw, self.relax_raw = msg.tension_ceiling_raw, msg.relax_raw
             self.thermal_limit_c = msg.thermal_limit_c
             self.last_command = now
+            self.latched &= ~Fault.WATCHDOG  # a new session starts
             return
         if not isinstance(msg, Stop | Relax | PositionCommand | TensionCommand):
             return
