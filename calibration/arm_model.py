@@ -8,6 +8,7 @@ the muscles must supply, and the motor length is ``l = h_geom(theta) - dn(f)``.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,7 +71,9 @@ def _batched(fn, theta, n_joints: int) -> np.ndarray:
     if theta.ndim != 2 or theta.shape[1] != n_joints:
         raise ValueError(f"theta must have shape ({n_joints},) or (B, {n_joints}), "
                          f"got {theta.shape}")
-    return np.stack([fn(t) for t in theta]) if len(theta) else np.empty((0,))
+    if not len(theta):
+        return np.empty((0,) + fn(np.zeros(n_joints)).shape)
+    return np.stack([fn(t) for t in theta])
 
 
 class ArmModel:
@@ -87,10 +90,25 @@ class ArmModel:
         self.f_max = np.array([m.f_max for m in robot.muscles], dtype=np.float64)
         self._model = pin.buildModelFromUrdf(str(robot.urdf_path))
         self._data = self._model.createData()
+        # pinocchio writes its results into _data: serialise users (the mock bus solves in a
+        # thread while other threads may query the same model).
+        self._lock = threading.Lock()
         self._build_index()
         self.joint_limits = np.stack([self._model.lowerPositionLimit[self._iq],
                                       self._model.upperPositionLimit[self._iq]], axis=1)
         self._h0 = self._length_jacobian(np.zeros(self.n_joints), jacobian=False)[0]
+
+    def __getstate__(self) -> dict:
+        """Pickle support (e.g. for worker processes): the lock and the scratch data are
+        rebuilt on unpickling."""
+        state = self.__dict__.copy()
+        del state["_lock"], state["_data"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._data = self._model.createData()
+        self._lock = threading.Lock()
 
     @classmethod
     def load(cls, name_or_path: str | Path) -> ArmModel:
@@ -151,18 +169,20 @@ class ArmModel:
         """
         model, data = self._model, self._data
         q = self._q(theta)
-        if jacobian:
-            pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
-        else:
-            pin.forwardKinematics(model, data, q)
-        rot = np.array([data.oMi[j].rotation for j in self._joint_ids])[self._via_joint]
-        trans = np.array([data.oMi[j].translation for j in self._joint_ids])[self._via_joint]
+        with self._lock:
+            if jacobian:
+                pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
+                J = data.J[:, self._iv]
+            else:
+                pin.forwardKinematics(model, data, q)
+            rot = np.array([data.oMi[j].rotation for j in self._joint_ids])[self._via_joint]
+            trans = np.array([data.oMi[j].translation for j in self._joint_ids])
+        trans = trans[self._via_joint]
         p = np.einsum("vij,vj->vi", rot, self._via_local) + trans
         d = p[self._seg_b] - p[self._seg_a]
         seg_len = np.sqrt(np.einsum("si,si->s", d, d))
         paths = _Paths(seg_len=seg_len, u=d / seg_len[:, None])
         if jacobian:
-            J = data.J[:, self._iv]
             pe = p[self._end_points]
             paths.omega = J[3:]
             paths.jp = (J[None, :3] + _cross(J[None, 3:], pe[:, :, None])) \
@@ -218,17 +238,21 @@ class ArmModel:
         return _batched(self._gravity, theta, self.n_joints)
 
     def _gravity(self, theta: np.ndarray) -> np.ndarray:
-        g = pin.computeGeneralizedGravity(self._model, self._data, self._q(theta))
-        return np.array(g)[self._iv]
+        with self._lock:
+            g = pin.computeGeneralizedGravity(self._model, self._data, self._q(theta))
+            return np.array(g)[self._iv]
 
     def _gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
-        dg = pin.computeGeneralizedGravityDerivatives(self._model, self._data, self._q(theta))
-        return np.array(dg)[np.ix_(self._iv, self._iv)]
+        with self._lock:
+            dg = pin.computeGeneralizedGravityDerivatives(self._model, self._data,
+                                                          self._q(theta))
+            return np.array(dg)[np.ix_(self._iv, self._iv)]
 
     def potential_energy(self, theta) -> float:
         """Gravity potential energy (J) of a single pose; its gradient is ``gravity_torque``."""
         theta = np.asarray(theta, dtype=np.float64)
-        return float(pin.computePotentialEnergy(self._model, self._data, self._q(theta)))
+        with self._lock:
+            return float(pin.computePotentialEnergy(self._model, self._data, self._q(theta)))
 
     # ------------------------------------------------------------------------- elasticity
     def stretch(self, tension) -> np.ndarray:
