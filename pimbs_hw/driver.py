@@ -37,6 +37,7 @@ from pimbs_hw.protocol.codec import (
     board_of,
     decode,
     encode,
+    frame_id,
     signal_range,
 )
 from pimbs_hw.safety import (
@@ -157,15 +158,17 @@ class ArmDriver:
         lim = self.limits
         ceiling = self._raw(lim.tension_margin * self.f_max)  # commands stop at f_max
         relax = self._raw(lim.relax_targets(self.f_floor))
-        self._send_all([SetLimits(b, 0, lim.watchdog_s, int(ceiling[i]), int(relax[i]),
-                                  lim.board_thermal_limit_c)
-                        for i, b in enumerate(self.board_ids)])
+        limits = [SetLimits(b, 0, lim.watchdog_s, int(ceiling[i]), int(relax[i]),
+                            lim.board_thermal_limit_c) for i, b in enumerate(self.board_ids)]
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            self._pump(deadline - time.monotonic())
+        while (left := deadline - time.monotonic()) > 0:
+            self._send_all(limits)  # repeated: a lost SET_LIMITS frame costs one round
+            self._pump(min(left, 0.2))
             if all(rx.msg is not None and not rx.msg.faults & Fault.UNCONFIGURED
                    for rx in self._rx) and all(rx.msg is not None for rx in self._joint_rx):
                 break
+            for rx in self._rx:
+                rx.fresh = False  # wait for frames sent after this round's SET_LIMITS
         missing = [i for i, rx in enumerate(self._rx)
                    if rx.msg is None or rx.msg.faults & Fault.UNCONFIGURED]
         if missing:
@@ -188,7 +191,7 @@ class ArmDriver:
             msg = decode(frame.arbitration_id, frame.data)
         except CodecError:
             board = board_of(frame.arbitration_id)
-            if board in self._index:
+            if board in self._index and frame.arbitration_id == frame_id(Status, board):
                 self._rx[self._index[board]].corrupt.append(frame.timestamp)
             return
         if isinstance(msg, Status) and msg.board_id in self._index:

@@ -106,7 +106,7 @@ class MockArm:
         self._joint_counter = 0
         self._next_status = np.full(m, now)
         self._next_joints = self._last_tick = now
-        self._readings = [self._read(i, self.plant.state) for i in range(m)]
+        self._readings = self._read_all(self.plant.state)
 
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
@@ -186,7 +186,7 @@ class MockArm:
         with self._lock:
             state = self.plant.step(min(now - self._last_tick, 0.1))
             self._last_tick = now
-            self._readings = [self._read(i, state) for i in range(len(self.boards))]
+            self._readings = self._read_all(state)
             for board, reading in zip(self.boards, self._readings, strict=True):
                 board.supervise(now, reading)
             self._actuate()
@@ -206,20 +206,24 @@ class MockArm:
             values = np.where(tension, true, values)
         self.plant.command(tuple(modes), values)
 
-    def _read(self, i: int, state) -> Reading:
-        spec = self.boards[i].spec
+    def _read_all(self, state) -> list[Reading]:
+        """Every board's sensors: encoder counts, noisy loadcell (through the effects), °C."""
         tension = self.effects.read_tension(self.model, state.tension, state.approach,
-                                            state.temperature)[i]
-        temperature = state.temperature[i]
+                                            state.temperature)
+        temperature = state.temperature
         if self.noise:
-            tension += self.rng.normal(0.0, 0.3)
-            temperature += self.rng.normal(0.0, 0.1)
-        raw = round(spec.loadcell_offset_counts + tension / spec.loadcell_n_per_count)
-        if self._fault_on("saturate-loadcell", spec.name):
-            raw = RAW_MAX
-        return Reading(round(state.length[i] * spec.counts_per_m),
-                       int(np.clip(raw, RAW_MIN, RAW_MAX)),
-                       float(np.clip(temperature, TEMP_MIN, TEMP_MAX)))
+            tension = tension + self.rng.normal(0.0, 0.3, len(tension))
+            temperature = temperature + self.rng.normal(0.0, 0.1, len(temperature))
+        readings = []
+        for i, board in enumerate(self.boards):
+            spec = board.spec
+            raw = round(spec.loadcell_offset_counts + tension[i] / spec.loadcell_n_per_count)
+            if self._fault_on("saturate-loadcell", spec.name):
+                raw = RAW_MAX
+            readings.append(Reading(round(state.length[i] * spec.counts_per_m),
+                                    int(np.clip(raw, RAW_MIN, RAW_MAX)),
+                                    float(np.clip(temperature[i], TEMP_MIN, TEMP_MAX))))
+        return readings
 
     # -- faults ----------------------------------------------------------------------------
     def _fault_on(self, kind: str, muscle: str | None = None) -> bool:
