@@ -88,6 +88,7 @@ class _Rx:
         self.time = -np.inf
         self.fresh = False
         self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
+        self.lost = 0  # sum of the gaps in ``gaps``
         self.corrupt: collections.deque[float] = collections.deque()
 
     def update(self, msg: Status | JointStatus, now: float) -> None:
@@ -96,15 +97,15 @@ class _Rx:
             if gap == 15:  # same counter again: a repeated frame, not news
                 return
             self.gaps.append((now, gap))
+            self.lost += gap
         self.msg, self.time, self.fresh = msg, now, True
 
     def loss(self, now: float, window_s: float) -> tuple[float, int]:
         """(fraction of frames lost, frames received) over the last ``window_s``."""
         while self.gaps and now - self.gaps[0][0] > window_s:
-            self.gaps.popleft()
-        lost = sum(gap for _, gap in self.gaps)
+            self.lost -= self.gaps.popleft()[1]
         n = len(self.gaps)
-        return (lost / (lost + n) if n else 0.0), n
+        return (self.lost / (self.lost + n) if n else 0.0), n
 
     def corrupt_in_last_second(self, now: float) -> int:
         while self.corrupt and now - self.corrupt[0] > 1.0:

@@ -124,6 +124,8 @@ _FAULT_STOPS: tuple[tuple[Fault, type[SafetyStop], str], ...] = (
 
 def fault_stop(faults: Fault) -> tuple[type[SafetyStop], str] | None:
     """The stop a board's fault bits call for, or None (STOPPED alone is not a fault)."""
+    if not int(faults) & ~int(Fault.STOPPED):
+        return None  # the common case, without enum arithmetic
     for bit, kind, detail in _FAULT_STOPS:
         if faults & bit:
             return kind, detail

@@ -115,13 +115,16 @@ _BY_ID = {
     for cls in MESSAGE_TYPES for board in range(MAX_BOARDS)
 }
 _FAULT_SIGNALS = tuple((f"fault_{f.name.lower()}", f) for f in Fault)
+_SPECS = {cls: DB.get_message_by_name(cls.MESSAGE) for cls in MESSAGE_TYPES}
+_FIELDS = {cls: tuple(f.name for f in dataclasses.fields(cls) if f.name != "board_id")
+           for cls in MESSAGE_TYPES}
 
 
 def frame_id(cls: type[_Message], board_id: int) -> int:
     """CAN id of message ``cls`` for ``board_id``."""
     if not 0 <= board_id < MAX_BOARDS:
         raise ValueError(f"board_id {board_id} out of range 0..{MAX_BOARDS - 1}")
-    return DB.get_message_by_name(cls.MESSAGE).frame_id + board_id
+    return _SPECS[cls].frame_id + board_id
 
 
 def board_of(arbitration_id: int) -> int | None:
@@ -142,16 +145,16 @@ def _data_id(arbitration_id: int) -> bytes:
 
 def encode(msg: Message) -> tuple[int, bytes]:
     """Frame for ``msg``; raises CodecError if a value is outside its DBC range."""
-    fid = frame_id(type(msg), msg.board_id)
-    signals = {f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)}
-    del signals["board_id"]
+    cls = type(msg)
+    fid = frame_id(cls, msg.board_id)
+    signals = {name: getattr(msg, name) for name in _FIELDS[cls]}
     signals["counter"] &= 0xF
     signals["crc"] = 0
     if isinstance(msg, Status):
         faults = signals.pop("faults")
         signals.update({name: int(bool(faults & bit)) for name, bit in _FAULT_SIGNALS})
     try:
-        data = bytearray(DB.get_message_by_frame_id(fid - msg.board_id).encode(signals))
+        data = bytearray(_SPECS[cls].encode(signals))
     except (cantools.database.EncodeError, ValueError, KeyError) as exc:
         raise CodecError(fid, f"cannot encode {msg}: {exc}") from exc
     data[0] = crc8_j1850(_data_id(fid) + bytes(data[1:]))
@@ -164,7 +167,7 @@ def decode(arbitration_id: int, data: bytes) -> Message:
     if entry is None:
         raise CodecError(arbitration_id, "not a PIMBS board frame id")
     cls, board = entry
-    spec = DB.get_message_by_name(cls.MESSAGE)
+    spec = _SPECS[cls]
     if len(data) != spec.length:
         raise CodecError(arbitration_id,
                          f"{cls.MESSAGE} has {len(data)} bytes, expected {spec.length}")
