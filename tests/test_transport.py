@@ -155,3 +155,15 @@ def test_serial_carries_error_frames(pty_pair):
     boards.send_error(CAN_ERR_BUSOFF)
     with pytest.raises(BusOff, match=host.port):
         host.recv(1.0)
+
+
+def test_serial_unplugged_is_reported():
+    master = PtyMaster()
+    host = SerialTransport(master.slave_path)
+    try:
+        master.close()  # the USB adapter goes away
+        with pytest.raises(LinkLost, match="serial reader stopped"):
+            for _ in range(20):
+                host.recv(0.1)
+    finally:
+        host.close()
