@@ -51,8 +51,28 @@ class DescriptionError(ValueError):
         super().__init__(f"{self.path}: field '{field}': {problem}. {fix}")
 
 
-@dataclass(frozen=True)
-class ViaPoint:
+class _ArrayFieldsEq:
+    """Value equality for frozen dataclasses holding numpy arrays (which dataclass ``==``
+    cannot compare); the arrays are made read-only so the instances really are frozen."""
+
+    def __post_init__(self) -> None:
+        for value in self.__dict__.values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return all(np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+                   for a, b in zip(self.__dict__.values(), other.__dict__.values(), strict=True))
+
+    def __hash__(self) -> int:
+        return hash(tuple(v.tobytes() if isinstance(v, np.ndarray) else v
+                          for v in self.__dict__.values()))
+
+
+@dataclass(frozen=True, eq=False)
+class ViaPoint(_ArrayFieldsEq):
     """A point the muscle wire passes through, fixed in the frame of ``link`` (metres)."""
 
     link: str
@@ -74,8 +94,8 @@ class MuscleSpec:
     loadcell_offset_counts: float
 
 
-@dataclass(frozen=True)
-class RobotDescription:
+@dataclass(frozen=True, eq=False)
+class RobotDescription(_ArrayFieldsEq):
     """A validated robot: skeleton file, actuated joints and muscles."""
 
     name: str

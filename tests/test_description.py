@@ -142,3 +142,13 @@ def test_bad_yaml_syntax(tmp_path):
     with pytest.raises(DescriptionError, match="cannot read YAML") as err:
         load_robot(path)
     assert str(path) in str(err.value)
+
+
+def test_descriptions_compare_by_value_and_are_read_only():
+    a, b = load_robot("left-arm-5dof"), load_robot("left-arm-5dof")
+    assert a == b and a != load_robot("two-link-4-muscle")
+    assert hash(a.muscles[0]) == hash(b.muscles[0])
+    with pytest.raises(ValueError, match="read-only"):
+        a.joint_range[0, 0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        a.muscles[0].path[0].point[0] = 1.0
