@@ -72,7 +72,7 @@ class MockArm:
     """Simulated boards of ``robot`` behind ``link``; ``port`` is what a driver opens."""
 
     def __init__(self, robot, link: str = "virtual", *, model=None, effect=None,
-                 faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.005,
+                 faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True) -> None:
         from calibration.arm_model import ArmModel
         from calibration.description import load_robot

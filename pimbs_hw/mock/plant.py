@@ -97,9 +97,15 @@ class Plant:
         self._solver.target = eq
 
     def command(self, modes: tuple[str, ...], values: np.ndarray) -> None:
-        """New motor targets (per muscle "length" [m] or "tension" [N]); solved if changed."""
-        if modes == self._command[0] and np.array_equal(values, self._command[1]):
-            return
+        """New motor targets (per muscle "length" [m] or "tension" [N]); solved if changed.
+
+        Changes below the resolution that matters (0.02 N, 0.1 µm) are ignored, so targets
+        that drift with temperature (a thermal effect) do not keep the solver busy.
+        """
+        if modes == self._command[0]:
+            tol = np.where(np.array(modes) == "tension", 0.02, 1e-7)
+            if np.all(np.abs(np.asarray(values) - self._command[1]) <= tol):
+                return
         self._command = (modes, np.array(values, float))
         self._solver.request(*self._command)
 
