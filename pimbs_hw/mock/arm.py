@@ -17,6 +17,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -77,7 +78,7 @@ class MockArm:
         from calibration.arm_model import ArmModel
         from calibration.description import load_robot
 
-        self.robot = load_robot(robot) if isinstance(robot, str) else robot
+        self.robot = load_robot(robot) if isinstance(robot, str | Path) else robot
         self.muscles = tuple(m.name for m in self.robot.muscles)
         self.faults: tuple[FaultSpec, ...] = parse_faults(faults, self.muscles)
         self.effects = EffectStack(effect)
@@ -94,7 +95,11 @@ class MockArm:
         self._by_id = {spec.board_id: i for i, spec in enumerate(self.robot.muscles)}
         if len(self._by_id) != m or not all(0 <= b < MAX_BOARDS for b in self._by_id):
             raise ValueError(f"{self.robot.name}: board ids must be unique in 0..{MAX_BOARDS - 1}")
-        self.transport, self.port = _open_link(link)
+        try:
+            self.transport, self.port = _open_link(link)
+        except BaseException:
+            self.plant.close()
+            raise
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
