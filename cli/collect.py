@@ -8,7 +8,12 @@ sample and ``--resume`` continues it.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import signal
+import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
@@ -19,6 +24,28 @@ from cli.common import robot_option, user_errors
 def _default_out(robot: str) -> Path:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     return Path(f"collection-{Path(robot).name.removesuffix('.muscles.yaml')}-{stamp}.parquet")
+
+
+def _raise_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _stop_on_signals() -> Iterator[None]:
+    """Ctrl-C and SIGTERM both end the run cleanly (arm relaxed, file closed, summary).
+
+    Installed explicitly: a shell starts background jobs with SIGINT ignored, and the
+    default SIGTERM would skip the relax and the summary.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, _raise_interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 @click.command("collect")
@@ -65,6 +92,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     """
     from calibration.arm_model import ArmModel
     from pimbs_hw import is_simulated
+    from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.plan import CollectionPlan
     from pimbs_hw.collection.resume import collection_meta, open_recording
     from pimbs_hw.collection.settle import SettleConfig
@@ -82,16 +110,18 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     plan = CollectionPlan(model, samples, seed, map_kind)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
+    moves = MoveConfig(speed=mock_speed if simulated else 1.0)
     meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
-                           settle=settle.meta())
+                           settle=settle.meta(), move=moves.meta())
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
         click.echo(f"{out} already holds all {samples} samples; nothing to do")
         return
-    _run(port, model, plan, writer, start, settle, faults, conceal, seed, mock_speed)
+    with _stop_on_signals():
+        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
 
 
-def _run(port, model, plan, writer, start, settle, faults, conceal, seed, speed) -> None:
+def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -106,8 +136,8 @@ def _run(port, model, plan, writer, start, settle, faults, conceal, seed, speed)
     error: str | None = None
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
-                       speed=speed) as link:
-            collector = Collector(link, model, plan, writer, start, settle)
+                       speed=moves.speed) as link:
+            collector = Collector(link, model, plan, writer, start, settle, move=moves)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
             with LiveReporter(console) as reporter:
@@ -129,4 +159,4 @@ def _run(port, model, plan, writer, start, settle, faults, conceal, seed, speed)
     if error:
         raise click.ClickException(error)
     if collector is None or not collector.summary.complete:
-        raise click.exceptions.Exit(130)
+        sys.exit(130)  # SystemExit: not turned into an error message by user_errors

@@ -1,25 +1,26 @@
 """Getting from one sample to the next without jerks: ramps instead of step commands.
 
 Each board gets its new command a moment after the previous one, and each muscle's elastic
-element is exponentially stiff, so a step in one muscle's length while its antagonists are
-still held at the old pose stretches a wire by millimetres: hundreds of newtons (the mock bus
+element is exponentially stiff: a step in one muscle's length while its antagonists are still
+held at the old pose stretches a wire by millimetres, hundreds of newtons (the mock bus
 reproduces this as a saturated loadcell). So we never step. Modes are switched only where the
-new command equals what the muscle is doing now, and then commands are ramped in small
-increments along a path the model says is consistent:
+new command equals what the muscle is doing now, wires are loaded only while the pose is held,
+and commands are ramped in small increments at a limited rate:
 
-* ``move_commands`` (all muscles in length control): the geometric lengths along the straight
-  joint-space path from the current pose to the target, with the tension interpolated from
-  the current readings to the low pretension; the model's error at the start (measured minus
-  modelled lengths) is blended out along the way, so the first command is where the arm is.
-* ``slack_commands``: the held muscles ramp from the pretension length to the QP length, the
-  others from their current tension to the QP tension.
+* ``release``: at the old pose, held muscles ramp to their low-pretension length and the others
+  to the pretension (what the slack removal did, undone), so the move happens at low tension
+  where a millimetre of mismatch costs little;
+* ``move``: all muscles length-controlled along the straight joint-space path from the current
+  pose to the target at the pretension; the model's error at the start (measured minus
+  modelled lengths) is blended out along the way, so the first command is where the arm is;
+* ``take_up_slack``: held muscles ramp from the pretension length to the QP length, the others
+  from their current tension to the QP tension.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -30,47 +31,82 @@ from pimbs_hw.collection.plan import Target
 
 @dataclass(frozen=True)
 class MoveConfig:
-    """Largest change of one command per control cycle."""
+    """Per-cycle increments (bound the damage of board-to-board skew) and rates (the arm's)."""
 
-    length_step: float = 5e-4  # m (0.5 mm: about 0.5 N·(f+1) of elastic tension at K = 1000)
-    tension_step: float = 20.0  # N
-    poll: float = 0.005        # s per cycle
+    length_step: float = 1e-3     # m per command cycle
+    tension_step: float = 25.0    # N per command cycle
+    length_rate: float = 0.05     # m/s
+    tension_rate: float = 1000.0  # N/s
+    speed: float = 1.0            # time speed-up of a simulated arm: rates scale with it
+
+    def meta(self) -> dict:
+        return asdict(self)
 
 
-def _steps(delta: np.ndarray, is_length: np.ndarray, cfg: MoveConfig) -> int:
-    scale = np.where(is_length, cfg.length_step, cfg.tension_step)
-    return max(1, int(np.ceil(np.max(np.abs(delta) / scale))))
+@dataclass(frozen=True)
+class Ramp:
+    """Commands in one mode, sent evenly over ``duration`` seconds."""
+
+    mode: tuple[str, ...] | str
+    commands: list[np.ndarray]
+    duration: float
 
 
-def move_commands(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
-                  cfg: MoveConfig) -> Iterator[np.ndarray]:
-    """Length commands (M,) from where the arm is to ``target.approach_length``."""
+def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
+          path=None) -> Ramp:
+    delta = np.abs(end - start)
+    steps = np.where(is_length, cfg.length_step, cfg.tension_step)
+    rates = np.where(is_length, cfg.length_rate, cfg.tension_rate) * cfg.speed
+    n = max(1, int(np.ceil(np.max(delta / steps))))
+    s = np.linspace(0.0, 1.0, n + 1)
+    commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
+    commands[-1] = end
+    return Ramp(mode, commands, float(np.max(delta / rates)))
+
+
+def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) -> Ramp:
+    """Unload the old pose: the slack removal of ``previous`` run backwards."""
+    start = np.where(previous.held, now.length, now.tension)
+    end = np.where(previous.held, previous.approach_length, _pretension(model, previous))
+    return _ramp(previous.hold_mode, start, end, previous.held, cfg)
+
+
+def _pretension(model: ArmModel, target: Target) -> np.ndarray:
+    """The low tension the approach lengths were computed for."""
+    return model.tension_from_stretch(model.h_geom(target.theta) - target.approach_length)
+
+
+def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
+         cfg: MoveConfig) -> Ramp:
+    """Length commands from where the arm is to ``target.approach_length``."""
     f_now = np.maximum(now.tension, 0.0)
-    f_end = model.tension_from_stretch(model.h_geom(target.theta) - target.approach_length)
+    f_end = _pretension(model, target)
     start_error = now.length - model.length(theta_now, f_now)
-    n = _steps(target.approach_length - now.length, np.ones(model.n_muscles, bool), cfg)
-    for s in np.linspace(0.0, 1.0, n + 1):
+
+    def path(s: float) -> np.ndarray:
         theta = theta_now + s * (target.theta - theta_now)
-        f = f_now + s * (f_end - f_now)
-        yield model.length(theta, f) + (1.0 - s) * start_error
-    yield target.approach_length  # exactly, whatever rounding did
+        return model.length(theta, f_now + s * (f_end - f_now)) + (1.0 - s) * start_error
+
+    return _ramp("length", now.length, target.approach_length,
+                 np.ones(model.n_muscles, bool), cfg, path)
 
 
-def slack_commands(now: Reading, target: Target, cfg: MoveConfig) -> Iterator[np.ndarray]:
-    """Mixed commands (M,) in ``target.hold_mode`` from the current readings to the holding."""
+def take_up_slack(now: Reading, target: Target, cfg: MoveConfig) -> Ramp:
+    """Mixed commands in ``target.hold_mode`` from the current readings to the holding."""
     start = np.where(target.held, now.length, now.tension)
-    n = _steps(target.hold_command - start, target.held, cfg)
-    for s in np.linspace(0.0, 1.0, n + 1):
-        yield start + s * (target.hold_command - start)
+    return _ramp(target.hold_mode, start, target.hold_command, target.held, cfg)
 
 
-def ramp(link: ArmLink, mode: tuple[str, ...] | str, commands: Iterator[np.ndarray],
-         poll: float) -> Reading:
-    """Send each command for one control cycle (reading, so limits are checked each time)."""
+def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:
+    """Send the commands evenly over the ramp's duration, reading (limits checked) each cycle."""
+    t0 = time.monotonic()
+    last = max(len(ramp.commands) - 1, 1)
     reading = None
-    for command in commands:
-        link.command(mode, command)
+    for k, command in enumerate(ramp.commands):
+        wait = t0 + ramp.duration * k / last - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        link.command(ramp.mode, command)
         reading = link.read()
-        time.sleep(poll)
     assert reading is not None
     return reading

@@ -20,13 +20,14 @@ _OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": 
 
 
 def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,
-                    simulated: bool, settle: Mapping[str, Any]) -> dict[str, Any]:
+                    simulated: bool, settle: Mapping[str, Any],
+                    move: Mapping[str, Any]) -> dict[str, Any]:
     """The recording's ``pimbs`` metadata: identity of the sequence plus how it was taken."""
     return make_meta(model.joints, model.muscles, "simulation" if simulated else "hardware",
                      robot=model.robot.name, **plan_meta, port=port,
                      generator="pimbs collect",
                      theta_source="joint_encoders" if model.robot.joint_encoders else "model",
-                     settle=dict(settle), joint_range=model.joint_range.tolist(),
+                     settle=dict(settle), move=dict(move), joint_range=model.joint_range.tolist(),
                      K=model.K.tolist())
 
 

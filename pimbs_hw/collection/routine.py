@@ -23,7 +23,7 @@ from calibration.recording import RecordingWriter
 from calibration.simulate import approach_direction
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import ArmLink, Reading
-from pimbs_hw.collection.move import MoveConfig, move_commands, ramp, slack_commands
+from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 
@@ -104,6 +104,8 @@ class Collector:
         """Collect samples ``start .. total-1``; exceptions propagate with the file intact."""
         reading = self.link.read()  # the first pose is approached from where the arm is
         theta = self._theta(reading, np.zeros(self.model.n_joints))
+        previous = None  # target the arm is loaded at (None: relaxed)
+        prev_length = reading.length
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
             try:
@@ -113,18 +115,19 @@ class Collector:
                 self._warn(f"sample {i} skipped: {exc}")
                 self.summary.next_sample = i + 1
                 continue
-            muscles, poll = self.model.muscles, self.move.poll
-            ramp(self.link, "length",
-                 move_commands(self.model, reading, theta, target, self.move), poll)
+            model, muscles, cfg = self.model, self.model.muscles, self.move
+            if previous is not None:
+                reading = run_ramp(self.link, release(model, reading, previous, cfg))
+            run_ramp(self.link, move(model, reading, theta, target, cfg))
             moved = hold_until_settled(self.link, "length", target.approach_length,
                                        self.settle, muscles)
-            ramp(self.link, target.hold_mode, slack_commands(moved.reading, target, self.move),
-                 poll)
+            run_ramp(self.link, take_up_slack(moved.reading, target, cfg))
+            previous = target
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
-            row = self._row(i, target.theta, held, reading.length)
+            row = self._row(i, target.theta, held, prev_length)
             self.writer.append(row)
-            reading, theta = held.reading, row["theta"]
+            reading, theta, prev_length = held.reading, row["theta"], held.reading.length
             self._account(i, held, row)
         return self.summary
 
