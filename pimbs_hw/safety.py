@@ -87,7 +87,7 @@ class SafetyLimits:
     fault_c: float = 75.0  # ... to f_floor here, where the host stops
     board_thermal_limit_c: float = 80.0  # the board relaxes on its own above this
     tension_margin: float = 1.1  # readings above margin * ceiling stop (commands are clamped)
-    silent_after_s: float = 0.2
+    silent_after_s: float = 0.3
     loss_window_s: float = 0.25  # the loss ratio counts counter gaps of this recent past
     max_loss: float = 0.5
     corrupt_per_s: int = 3  # per board (CRC) or per bus (error frames / bad serial frames)

@@ -40,7 +40,7 @@ from pimbs_hw.transport.base import CAN_ERR_BUSOFF
 
 log = logging.getLogger(__name__)
 OVERHEAT_RATE_C_PER_S = 400.0  # injected thermal runaway: past any limit within 0.15 s
-DROP_PROBABILITY = 0.75
+DROP_KEEP_EVERY = 4  # drop-frames: 3 of every 4 status frames lost (75 %, never a long gap)
 _ANGLE_MIN, _ANGLE_MAX = signal_range(JointStatus, "angle_rad")
 
 
@@ -255,7 +255,7 @@ class MockArm:
             fid, data = encode(board.status(self._readings[i]))
         if self._bus_off or self._fault_on("silent-board", name):
             return
-        if self._fault_on("drop-frames", name) and self.rng.random() < DROP_PROBABILITY:
+        if self._fault_on("drop-frames", name) and board.counter % DROP_KEEP_EVERY:
             return
         if self._fault_on("corrupt-frames", name):
             bad = bytearray(data)
