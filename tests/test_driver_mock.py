@@ -78,7 +78,12 @@ def test_mixed_modes_and_zero(robot):
         assert mock.snapshot().modes == ("position", "tension", "relax", "tension")
         assert state.tension[1] == pytest.approx(50, abs=1.5)
         driver.zero()
-        assert driver.read_state().length == pytest.approx(np.zeros(4), abs=3e-5)
+        state = driver.read_state()
+        assert state.length == pytest.approx(np.zeros(4), abs=3e-5)
+        assert state.muscle("m1")["tension"] == state.tension[1]
+        driver.stop()
+        driver.dwell(0.05)
+        assert mock.snapshot().modes == ("hold",) * 4
 
 
 def test_stale_data_is_flagged():
@@ -205,3 +210,36 @@ def test_reconnect_after_a_crashed_host(robot):
             assert not any(driver.read_state().faults)
             driver.command("tension", 30.0)
             assert driver.dwell(0.2).tension == pytest.approx(np.full(4, 30.0), abs=1.5)
+
+
+class _StandInModel:
+    """Trivial plant: the equilibrium is the command itself (lengths and tensions as given)."""
+
+    n_muscles, n_joints = 2, 1
+
+    def equilibrium(self, mode, command, theta0=None):
+        from types import SimpleNamespace
+
+        command = np.asarray(command, float)
+        is_length = np.array(mode) == "length"
+        return SimpleNamespace(theta=np.array([command.sum()]),
+                               tension=np.where(is_length, 0.0, command),
+                               length=np.where(is_length, command, 0.0))
+
+
+def test_plant_settles_first_order_with_speed_factor():
+    from pimbs_hw.mock.plant import Plant
+
+    plant = Plant(_StandInModel(), speed=4.0, tau_s=0.08)
+    try:
+        plant.command(("length", "tension"), np.array([0.01, 50.0]))
+        assert wait_until(lambda: plant._solver.idle() and plant._solver.target.length[0] > 0)
+        state = plant.step(0.02)  # one time constant: tau / speed
+        assert state.length[0] == pytest.approx(0.01 * (1 - np.exp(-1)))
+        assert state.tension[1] == pytest.approx(50.0 * (1 - np.exp(-1)))
+        assert state.approach[0] == 1  # lengthened into the pose
+        for _ in range(20):
+            state = plant.step(0.02)
+        assert plant.settled() and state.temperature[1] > state.temperature[0]  # load heats
+    finally:
+        plant.close()
