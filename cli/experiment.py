@@ -24,11 +24,14 @@ from cli.common import user_errors
               help="cuda trains all runs of one table cell-row together (stacked weights)")
 @click.option("--quick", is_flag=True,
               help="smoke run: 300 epochs, 2 seeds, 200-sample D_eval")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
 @user_errors
-def command(epochs: int | None, seeds: int | None, tables: str, out_dir: Path, lr: float,
-            device: str, quick: bool) -> None:
+def command(threads: int | None, epochs: int | None, seeds: int | None, tables: str,
+            out_dir: Path, lr: float, device: str, quick: bool) -> None:
     """Reproduce Tables I–III: mean ± std of L_eval^best (×1e5) over seeds, L_eval curves
     and the joint-angle / muscle-length figure, written to --out."""
+    import torch
     from rich.console import Console
     from rich.progress import (
         BarColumn,
@@ -42,6 +45,8 @@ def command(epochs: int | None, seeds: int | None, tables: str, out_dir: Path, l
     from pimbs_learn.experiment import paper_tables, run_table, save_outputs, table_runs
     from pimbs_learn.run import TrainOptions
 
+    if threads:
+        torch.set_num_threads(threads)
     epochs = epochs or (300 if quick else 20000)
     seeds = seeds or (2 if quick else 5)
     try:

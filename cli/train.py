@@ -38,10 +38,13 @@ LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
               default=None, help="write the metrics here")
 @click.option("--reference", is_flag=True,
               help="use the straightforward (slow) trainer instead of the fast one")
+@click.option("--threads", type=click.IntRange(min=1), default=None,
+              help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
 @user_errors
-def command(data: Path, map_kind: str, loss: str, alpha: float, n_train: int | None,
-            eval_path: Path | None, epochs: int, seed: int, lr: float, robot: str | None,
-            device: str, out: Path | None, json_path: Path | None, reference: bool) -> None:
+def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: float,
+            n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
+            robot: str | None, device: str, out: Path | None, json_path: Path | None,
+            reference: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording) with the paper's losses.
 
     The model kept is the one of the epoch with the lowest training L_basic; its L_eval
@@ -58,6 +61,8 @@ def command(data: Path, map_kind: str, loss: str, alpha: float, n_train: int | N
     from pimbs_learn.session import prepare_run
     from pimbs_learn.train import train
 
+    if threads:
+        torch.set_num_threads(threads)
     console = Console(stderr=True)
     run = prepare_run(data, LossConfig.parse(loss, alpha), atl=map_kind == "atl",
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot)
