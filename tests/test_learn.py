@@ -257,3 +257,38 @@ def test_scaling_maps_zero_to_zero() -> None:
     x = network_inputs(torch.zeros(1, 2), torch.zeros(1, 4),
                        torch.tensor(sc.input_inverse()))
     assert torch.count_nonzero(x) == 0
+
+
+def test_missing_tau_is_computed_from_the_robot(tmp_path) -> None:
+    from calibration.arm_model import ArmModel
+    from calibration.recording import write_recording
+    from calibration.simulate import simulate
+    from cli.train import command
+
+    data, meta = simulate(ArmModel.load("two-link-4-muscle"), 12, "atl", seed=0, noise=0.0)
+    tau = data["tau_gravity"].copy()
+    data["tau_gravity"] = np.full_like(tau, np.nan)
+    rec = tmp_path / "no-tau.parquet"
+    write_recording(rec, data, meta)
+    from pimbs_learn.data import load_samples
+
+    filled = fill_gravity(load_samples(rec), "two-link-4-muscle")
+    np.testing.assert_allclose(filled.tau, tau, rtol=1e-9, atol=1e-12)
+    res = CliRunner().invoke(command, [str(rec), "--n-train", "6", "--epochs", "2",
+                                       "--robot", "two-link-4-muscle"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(command, [str(rec), "--n-train", "6", "--epochs", "2",
+                                       "--robot", "left-arm-5dof"])
+    assert res.exit_code != 0 and "joints" in res.output
+
+
+def test_best_weight_keeping_is_the_same_on_host_and_device_paths() -> None:
+    from pimbs_learn.train import _keep_best
+
+    p = {"w": torch.arange(12.0).view(3, 2, 2)}
+    improved = torch.tensor([True, False, True])
+    a, b = {"w": torch.zeros(3, 2, 2)}, {"w": torch.zeros(3, 2, 2)}
+    _keep_best(p, a, improved, on_host=True)
+    _keep_best(p, b, improved, on_host=False)
+    torch.testing.assert_close(a["w"], b["w"])
+    assert a["w"][1].abs().sum() == 0 and torch.equal(a["w"][2], p["w"][2])
