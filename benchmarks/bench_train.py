@@ -37,6 +37,8 @@ class ChunkTimer:
         self.last, self.epochs, self.ms = time.perf_counter(), 0, []
 
     def __call__(self, epoch: int) -> None:
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()  # GPU work is asynchronous; time what was done
         now = time.perf_counter()
         self.ms.append((now - self.last) * 1e3 / (epoch - self.epochs))
         self.last, self.epochs = now, epoch
@@ -68,6 +70,7 @@ def main() -> None:
     ap.add_argument("--alpha", type=float, default=1e-5)
     ap.add_argument("--data", help="a recording to use instead of the synthetic body")
     ap.add_argument("--skip-reference", action="store_true")
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
 
@@ -77,11 +80,12 @@ def main() -> None:
         tr = synthetic_samples(a.n_train, seed=0)
         ev = synthetic_samples(1000, seed=1)
     run = Run(tr, ev, LossConfig.parse(a.loss, a.alpha), seed=0, atl=True)
-    opts = TrainOptions(epochs=a.epochs)
+    opts = TrainOptions(epochs=a.epochs, device=a.device)
     print(f"ATL-Map, {a.loss}, alpha={a.alpha:g}, n_train={tr.n_samples}, "
-          f"n_eval={ev.n_samples}, epochs={a.epochs}, threads={a.threads}")
+          f"n_eval={ev.n_samples}, epochs={a.epochs}, threads={a.threads}, "
+          f"device={a.device}")
 
-    train(run, TrainOptions(epochs=20))  # warm-up (allocator, kernels)
+    train(run, TrainOptions(epochs=20, device=a.device))  # warm-up (allocator, kernels)
     fast, fast_ms = timed(train_one, run, opts, "fast")
     if a.skip_reference:
         return
