@@ -33,20 +33,28 @@ class PolyBasis:
     def _x(self, theta: np.ndarray) -> np.ndarray:
         return (np.asarray(theta, float) - self.center) / self.scale
 
+    def _powers(self, theta: np.ndarray) -> np.ndarray:
+        """(B, N, degree+1) table of x^d: monomials are then gathers, not powers."""
+        x = self._x(theta)
+        return x[:, :, None] ** np.arange(self.degree + 1)
+
+    def _gather(self, powers: np.ndarray, exponents: np.ndarray) -> np.ndarray:
+        n = powers.shape[1]
+        return np.prod(powers[:, np.arange(n)[None, :], exponents], axis=2)  # (B, P)
+
     def values(self, theta: np.ndarray) -> np.ndarray:
         """(B, P) basis values."""
-        x = self._x(theta)
-        return np.prod(x[:, None, :] ** self.exponents[None], axis=2)
+        return self._gather(self._powers(theta), self.exponents)
 
     def gradients(self, theta: np.ndarray) -> np.ndarray:
         """(B, P, N) ∂basis/∂θ."""
-        x = self._x(theta)
+        powers = self._powers(theta)
         e = self.exponents
-        out = np.empty((len(x), len(e), x.shape[1]))
-        for k in range(x.shape[1]):
+        out = np.empty((len(powers), len(e), powers.shape[1]))
+        for k in range(powers.shape[1]):
             ek = e.copy()
             ek[:, k] = np.maximum(e[:, k] - 1, 0)
-            out[:, :, k] = e[:, k] * np.prod(x[:, None, :] ** ek[None], axis=2) / self.scale[k]
+            out[:, :, k] = e[:, k] * self._gather(powers, ek) / self.scale[k]
         return out
 
 
@@ -123,9 +131,20 @@ class GravityFunction:
         self.rms_error = float(np.sqrt(np.mean((fit - b) ** 2)))
         self.rms_tau = float(np.sqrt(np.mean(b**2)))
 
+    def _gradients(self, theta: np.ndarray) -> np.ndarray:
+        """Basis gradients, memoised: the fits evaluate many coefficients at fixed poses."""
+        theta = np.ascontiguousarray(theta, dtype=float)
+        key = (theta.shape, hash(theta.tobytes()))
+        cache = self.__dict__.setdefault("_cache", {})
+        if key not in cache:
+            if len(cache) > 32:
+                cache.clear()
+            cache[key] = self.basis.gradients(theta)
+        return cache[key]
+
     def torque(self, theta: np.ndarray, coef: np.ndarray | None = None) -> np.ndarray:
         c = self.coef if coef is None else coef
-        return np.einsum("bpn,p->bn", self.basis.gradients(theta), c)
+        return np.einsum("bpn,p->bn", self._gradients(theta), c)
 
     def derivative(self, theta: np.ndarray, eps: float = 1e-6) -> np.ndarray:
         """(B, N, N) ∂τ_i/∂θ_k by central differences of the analytic torque."""

@@ -38,7 +38,7 @@ def _sigmas(r_len: np.ndarray, r_tau: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def fit_effects(physics: Physics, data: Samples, units: list[Unit],
                 x0: np.ndarray | None = None, sigma: tuple | None = None,
-                key=None) -> Fit:
+                key=None, passes: int = 2) -> Fit:
     """Maximum-likelihood parameters of ``units`` on ``data`` (schema profiled out)."""
     cache_key = None if _moves_pose(units) else key
 
@@ -52,7 +52,7 @@ def fit_effects(physics: Physics, data: Samples, units: list[Unit],
     s_len, s_tau = sigma if sigma is not None else _sigmas(r_len, r_tau)
     cov = None
     if units:
-        for _ in range(2):  # fit, re-estimate the noise levels, fit again
+        for _ in range(passes):  # fit, re-estimate the noise levels, fit again
             sol = least_squares(lambda p, a=s_len, b=s_tau: _whiten(*resid_at(p)[0], a, b),
                                 params, method="lm", x_scale="jac", max_nfev=200 * len(units))
             params = sol.x
@@ -87,7 +87,7 @@ def cross_validate(physics: Physics, data: Samples, units: list[Unit],
     for i, test in enumerate(folds(data.n, k)):
         train_idx = np.setdiff1d(np.arange(data.n), test)
         train = data.rows(train_idx)
-        fit = fit_effects(physics, train, units, x0=x0, sigma=sigma, key=("cv", i))
+        fit = fit_effects(physics, train, units, x0=x0, sigma=sigma, key=("cv", i), passes=1)
         r_len, r_tau = evaluate(physics, fit, data.rows(test))
         sq.append(_whiten(r_len, r_tau, s_len, s_tau) ** 2)
         lens.append(r_len)

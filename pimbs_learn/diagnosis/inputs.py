@@ -82,7 +82,7 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
 
 
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:
-    options = {1: [3, 4, 5, 6, 7], 2: [3, 4, 5, 6], 3: [3, 4, 5], 4: [2, 3, 4]}.get(
+    options = {1: [3, 4, 5, 6, 7], 2: [3, 4, 5, 6], 3: [3, 4, 5], 4: [3, 4, 5], 5: [3, 4]}.get(
         n_joints, [2, 3])
     fits = [d for d in options
             if PolyBasis(n_joints, d, np.zeros(n_joints), np.ones(n_joints)).size < 0.3 * n_rows]

@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects
+from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
 
 
 def implied_tension_error(physics: Physics, fit: Fit, data: Samples,
                           r_tau: np.ndarray) -> np.ndarray:
     """(B, M): tension error of muscle j alone that best explains each torque residual."""
     state = apply_effects(physics, data, fit.units, fit.params)
-    _, grads = physics.basis_at(state.theta, None)
-    jac = np.einsum("bpn,pm->bmn", grads, fit.weights)  # (B, M, N)
+    jac = schema_jacobian(physics, state.theta, fit.weights)  # (B, M, N)
     # r = −G_jᵀ e_j  →  e_j = −G_j·r / |G_j|²
     return -np.einsum("bmn,bn->bm", jac, r_tau) / np.maximum(np.sum(jac**2, axis=2), 1e-12)
 

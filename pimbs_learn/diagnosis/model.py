@@ -33,6 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 
@@ -99,10 +100,16 @@ class Physics:
     ridge: float = 1e-9
     _cache: dict = field(default_factory=dict, repr=False)
 
-    def basis_at(self, theta: np.ndarray, key) -> tuple[np.ndarray, np.ndarray]:
+    def basis_at(self, theta: np.ndarray, key) -> tuple[np.ndarray, np.ndarray, tuple]:
+        """Basis values (B, P), gradients as (B, N, P), and a factorisation of the normal
+        equations — memoised per ``key`` because the effect fits revisit the same poses."""
         if key is not None and key in self._cache:
             return self._cache[key]
-        out = (self.basis.values(theta), self.basis.gradients(theta))
+        values = self.basis.values(theta)
+        grads = np.ascontiguousarray(self.basis.gradients(theta).transpose(0, 2, 1))
+        ata = values.T @ values
+        ata += self.ridge * np.trace(ata) / len(ata) * np.eye(len(ata))
+        out = (values, grads, cho_factor(ata))
         if key is not None:
             if len(self._cache) > 64:
                 self._cache.clear()
@@ -161,20 +168,24 @@ def schema_target(state: State, data: Samples) -> np.ndarray:
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
     """Least-squares body schema weights (P, M) on these samples."""
-    values, _ = physics.basis_at(state.theta, key)
-    y = schema_target(state, data)
-    ata = values.T @ values
-    reg = physics.ridge * np.trace(ata) / len(ata)
-    return np.linalg.solve(ata + reg * np.eye(len(ata)), values.T @ y)
+    values, _, factor = physics.basis_at(state.theta, key)
+    return cho_solve(factor, values.T @ schema_target(state, data))
+
+
+def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
+                    key=None) -> np.ndarray:
+    """G = ∂h/∂θ of the fitted schema, as (B, M, N)."""
+    _, grads, _ = physics.basis_at(theta, key)
+    return (grads @ weights).transpose(0, 2, 1)
 
 
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
               key=None) -> tuple[np.ndarray, np.ndarray]:
     """(length residual (B, M) in m, torque residual (B, N) in N·m)."""
-    values, grads = physics.basis_at(state.theta, key)
+    values, grads, _ = physics.basis_at(state.theta, key)
     r_len = schema_target(state, data) - values @ weights
-    jac = np.einsum("bpn,pm->bmn", grads, weights)  # G = ∂h/∂θ, (B, M, N)
-    r_tau = -np.einsum("bmn,bm->bn", jac, state.tension) - state.tau
+    gt = grads @ weights  # Gᵀ per sample, (B, N, M)
+    r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
     return r_len, r_tau
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects
+from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
 from pimbs_learn.diagnosis.select import Candidate
 
 
@@ -74,8 +74,7 @@ def effect_joints(cand: Candidate, physics: Physics, data: Samples, joints: list
     """Joints whose torque the effect changes noticeably (≥ 20 % of the largest)."""
     before = apply_effects(physics, data, base.units, base.params)
     after = apply_effects(physics, data, cand.fit.units, cand.fit.params)
-    _, grads = physics.basis_at(after.theta, None)
-    jac = np.einsum("bpn,pm->bmn", grads, cand.fit.weights)
+    jac = schema_jacobian(physics, after.theta, cand.fit.weights)
     change = (np.einsum("bmn,bm->bn", jac, after.tension - before.tension)
               + (after.tau - before.tau))
     rms = np.sqrt(np.mean(change**2, axis=0))

@@ -51,15 +51,18 @@ class Candidate:
     p_value: float
     delta_bic: float
     cv_before: dict
-    cv_after: dict
+    cv_after: dict | None
 
     @property
     def cv_gain(self) -> float:
+        if self.cv_after is None:
+            return float("nan")
         return 1.0 - self.cv_after["score"] / self.cv_before["score"]
 
     @property
     def significant(self) -> bool:
-        return self.p_value < P_VALUE and self.delta_bic > 0 and self.cv_gain >= MIN_CV_GAIN
+        return (self.cv_after is not None and self.p_value < P_VALUE and self.delta_bic > 0
+                and self.cv_gain >= MIN_CV_GAIN)
 
 
 def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.ndarray,
@@ -102,8 +105,9 @@ def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit
     return [u for g in chosen for u in g]
 
 
-def evaluate_candidate(physics: Physics, data: Samples, base: Fit, effect: str,
-                       cv_base: dict) -> Candidate | None:
+def fit_candidate(physics: Physics, data: Samples, base: Fit, effect: str,
+                  cv_base: dict) -> Candidate | None:
+    """Screen and refit one effect on top of ``base`` (no cross-validation yet)."""
     units = screen(physics, data, base, effect)
     if not units:
         return None
@@ -112,10 +116,38 @@ def evaluate_candidate(physics: Physics, data: Samples, base: Fit, effect: str,
                       key="full")
     df = len(units)
     lr = max(2.0 * (fit.log_lik - base.log_lik), 0.0)
-    sigma = (base.sigma_len, base.sigma_tau)
-    cv_after = cross_validate(physics, data, all_units, sigma, x0=fit.params)
     return Candidate(effect, units, fit, lr, df, float(chi2.sf(lr, df)),
-                     lr - df * np.log(data.n), cv_base, cv_after)
+                     lr - df * np.log(data.n), cv_base, None)
+
+
+def _cross_validate(physics: Physics, data: Samples, cand: Candidate, base: Fit) -> None:
+    cand.cv_after = cross_validate(physics, data, cand.fit.units,
+                                   (base.sigma_len, base.sigma_tau), x0=cand.fit.params)
+
+
+def _prefer_simpler(physics: Physics, data: Samples, best: Candidate,
+                    candidates: list[Candidate], base: Fit) -> Candidate:
+    """Of nested effects keep the richer one only if its extra parameters earn their keep.
+
+    A thermal drift is an offset plus a slope in temperature: where an offset explains the
+    data, the slope must add significance and held-out accuracy of its own.
+    """
+    simpler = NESTED.get(best.effect)
+    other = next((c for c in candidates if c.effect == simpler), None)
+    if other is None:
+        return best
+    if other.cv_after is None:
+        _cross_validate(physics, data, other, base)
+    extra_df = max(best.df - other.df, 1)
+    gain = 1.0 - best.cv_after["score"] / other.cv_after["score"]
+    if (chi2.sf(best.lr - other.lr, extra_df) < P_VALUE and gain >= MIN_CV_GAIN / 2
+            and other.significant):
+        return best
+    return other if other.significant else best
+
+
+NESTED = {"thermal_drift": "tension_offset"}
+CV_PER_ROUND = 3  # cross-validate at most this many of a round's best candidates
 
 
 def select_effects(physics: Physics, data: Samples, null: Fit,
@@ -133,14 +165,21 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
         for effect in remaining:
             if progress:
                 progress(effect)
-            cand = evaluate_candidate(physics, data, base, effect, cv_base)
+            cand = fit_candidate(physics, data, base, effect, cv_base)
             if cand is not None:
                 round_candidates.append(cand)
         tried += round_candidates
-        good = [c for c in round_candidates if c.significant]
-        if not good:
+        ranked = sorted((c for c in round_candidates if c.p_value < P_VALUE and c.delta_bic > 0),
+                        key=lambda c: -c.delta_bic)
+        best = None
+        for cand in ranked[:CV_PER_ROUND]:
+            _cross_validate(physics, data, cand, base)
+            if cand.significant:
+                best = cand
+                break
+        if best is None:
             break
-        best = max(good, key=lambda c: c.delta_bic)
+        best = _prefer_simpler(physics, data, best, round_candidates, base)
         named.append(best)
         remaining.remove(best.effect)
         base, cv_base = best.fit, best.cv_after
