@@ -16,7 +16,14 @@ import numpy as np
 from calibration.recording import Recording
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 from pimbs_learn.diagnosis.fit import choose_degree, fit_effects
-from pimbs_learn.diagnosis.model import Physics, Samples, Unit
+from pimbs_learn.diagnosis.model import (
+    Physics,
+    Samples,
+    Unit,
+    apply_effects,
+    residuals,
+    schema_jacobian,
+)
 
 DEFAULT_KAPPA = -1e-3  # start of the elasticity fit: K = 1000, physical sign
 
@@ -81,6 +88,29 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
     return Paired(real_s, ref_s, real.joints, real.muscles)
 
 
+def length_weights(physics: Physics, data: Samples) -> tuple[np.ndarray, dict]:
+    """Per-sample weights of the length law, from the noise each length carries.
+
+    The stretch ``log1p(f)/K`` that the schema subtracts inherits the loadcell noise times
+    ``1/(K(1+f))``: near slack that is a thousand times an encoder count. Loadcell and
+    encoder noise are estimated from an unweighted first fit (torque residuals over the
+    muscle Jacobian; length residuals of the well-tensioned half).
+    """
+    data.len_weight = None
+    fit = fit_effects(physics, data, [])
+    r_len, r_tau = residuals(physics, apply_effects(physics, data, [], np.zeros(0)), data,
+                             fit.weights)
+    jac = schema_jacobian(physics, data.theta, fit.weights)
+    g2 = np.mean(np.sum(jac**2, axis=1), axis=0)  # (N,) mean Σ_j G_jk²
+    sigma_f = float(np.clip(np.median(np.sqrt(np.mean(r_tau**2, 0) / np.maximum(g2, 1e-12))),
+                            0.02, 50.0))
+    tense = data.tension > np.median(data.tension)
+    sigma_l = float(max(np.median([np.sqrt(np.mean(r_len[tense[:, j], j] ** 2))
+                                   for j in range(r_len.shape[1]) if tense[:, j].any()]), 1e-7))
+    ratio = np.abs(physics.kappa) * sigma_f / ((1.0 + np.maximum(data.tension, 0.0)) * sigma_l)
+    return 1.0 / np.sqrt(1.0 + ratio**2), {"tension_N": sigma_f, "length_m": sigma_l}
+
+
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:
     options = {1: [3, 4, 5, 6, 7], 2: [3, 4, 5, 6], 3: [3, 4, 5], 4: [3, 4, 5], 5: [3, 4]}.get(
         n_joints, [2, 3])
@@ -107,6 +137,11 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)
+    first = make(degrees[len(degrees) // 2], start)
+    for data in (real, ref):
+        if data is not None:
+            data.len_weight, noise = length_weights(first, data)
+            info.setdefault("noise_estimate", noise)
     degree = choose_degree(lambda d: make(d, start), real if ref is None else ref, degrees)
     if kappa is None:
         if ref is None:

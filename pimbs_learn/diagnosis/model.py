@@ -80,9 +80,12 @@ class Samples:
     tau: np.ndarray          # (B, N) N·m, model gravity torque at θ
     time: np.ndarray         # (B,) s since the first sample
     sample: np.ndarray       # (B,) sample ids
+    # (B, M) weight of each length in the fit: a slack muscle's stretch log1p(f)/K is
+    # dominated by loadcell noise (d/df = 1/(K(1+f))), so its length says little.
+    len_weight: np.ndarray | None = None
 
     def rows(self, idx: np.ndarray) -> Samples:
-        return Samples(**{k: v[idx] for k, v in self.__dict__.items()})
+        return Samples(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
 
     @property
     def n(self) -> int:
@@ -100,16 +103,21 @@ class Physics:
     ridge: float = 1e-9
     _cache: dict = field(default_factory=dict, repr=False)
 
-    def basis_at(self, theta: np.ndarray, key) -> tuple[np.ndarray, np.ndarray, tuple]:
-        """Basis values (B, P), gradients as (B, N, P), and a factorisation of the normal
-        equations — memoised per ``key`` because the effect fits revisit the same poses."""
+    def basis_at(self, theta: np.ndarray, key, weight: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, list]:
+        """Basis values (B, P), gradients as (B, N, P), and per-muscle factorisations of the
+        weighted normal equations — memoised per ``key``: the effect fits revisit the same
+        poses and weights many times."""
         if key is not None and key in self._cache:
             return self._cache[key]
         values = self.basis.values(theta)
         grads = np.ascontiguousarray(self.basis.gradients(theta).transpose(0, 2, 1))
-        ata = values.T @ values
-        ata += self.ridge * np.trace(ata) / len(ata) * np.eye(len(ata))
-        out = (values, grads, cho_factor(ata))
+        eye = np.eye(values.shape[1])
+        factors = []
+        for w in (np.ones((len(values), 1)) if weight is None else weight).T:
+            ata = (values * (w**2)[:, None]).T @ values
+            factors.append(cho_factor(ata + self.ridge * np.trace(ata) / len(ata) * eye))
+        out = (values, grads, factors)
         if key is not None:
             if len(self._cache) > 64:
                 self._cache.clear()
@@ -161,15 +169,29 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
     return State(theta, f, kappa, tau)
 
 
+def stretch_term(tension: np.ndarray) -> np.ndarray:
+    """log1p(f), continued linearly below 0 (C¹ at 0).
+
+    A slack muscle's loadcell reads noise around zero; clipping it at zero would bias the
+    stretch upwards and make a tension offset look like it explains slack muscles.
+    """
+    return np.where(tension >= 0, np.log1p(np.maximum(tension, 0.0)), tension)
+
+
 def schema_target(state: State, data: Samples) -> np.ndarray:
     """Length minus the elastic stretch: what the body schema h(θ) must explain."""
-    return data.length - state.kappa * np.log1p(np.maximum(state.tension, 0.0))
+    return data.length - state.kappa * stretch_term(state.tension)
 
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
     """Least-squares body schema weights (P, M) on these samples."""
-    values, _, factor = physics.basis_at(state.theta, key)
-    return cho_solve(factor, values.T @ schema_target(state, data))
+    values, _, factors = physics.basis_at(state.theta, key, data.len_weight)
+    y = schema_target(state, data)
+    if len(factors) == 1:
+        return cho_solve(factors[0], values.T @ y)
+    w2 = data.len_weight**2
+    return np.stack([cho_solve(f, values.T @ (w2[:, j] * y[:, j]))
+                     for j, f in enumerate(factors)], axis=1)
 
 
 def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
@@ -182,8 +204,10 @@ def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
               key=None) -> tuple[np.ndarray, np.ndarray]:
     """(length residual (B, M) in m, torque residual (B, N) in N·m)."""
-    values, grads, _ = physics.basis_at(state.theta, key)
+    values, grads, _ = physics.basis_at(state.theta, key, data.len_weight)
     r_len = schema_target(state, data) - values @ weights
+    if data.len_weight is not None:
+        r_len = r_len * data.len_weight
     gt = grads @ weights  # Gᵀ per sample, (B, N, M)
     r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
     return r_len, r_tau
