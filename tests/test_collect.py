@@ -109,7 +109,7 @@ def test_complete_collection_is_valid_and_obeys_the_statics(arm, tmp_path):
     out = tmp_path / "x.parquet"
     res = _collect(out, "--samples", 8, "--seed", 4)
     assert res.exit_code == 0, res.output
-    assert "complete" in res.output
+    assert "collection complete" in res.output
     rec = read_recording(out)
     assert rec.n_rows == 8 and rec.sample.tolist() == list(range(8))
     np.testing.assert_array_equal(rec.theta_command, CollectionPlan(arm, 8, 4).poses)
@@ -128,6 +128,26 @@ def test_complete_collection_is_valid_and_obeys_the_statics(arm, tmp_path):
     assert res.exit_code == 1 and "--seed 4" in res.output and "Traceback" not in res.output
     res = _collect(out, "--samples", 8, "--seed", 4)
     assert res.exit_code == 1 and "--resume" in res.output
+
+
+def test_arm_without_joint_encoders_records_the_model_estimate(tmp_path):
+    arm5 = ArmModel.load("left-arm-5dof")
+    out = tmp_path / "5.parquet"
+    res = _collect(out, "--robot", "left-arm-5dof", "--samples", 3, "--seed", 1)
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.meta["theta_source"] == "model" and rec.n_rows == 3
+    assert np.abs(rec.theta - rec.theta_command).max() < 3e-3  # held well-conditioned
+    assert np.abs(_balance_residual(arm5, rec)).max() < 0.05
+
+
+def test_unsettled_samples_are_recorded_flagged_and_warned(tmp_path):
+    out = tmp_path / "u.parquet"
+    res = _collect(out, "--samples", 2, "--settle-tol", 1e-6, "--settle-timeout", 0.15)
+    assert res.exit_code == 0, res.output
+    assert "did not settle within 0.15 s" in res.output and "2 unsettled" in res.output
+    rec = read_recording(out)
+    assert rec.n_rows == 2 and not rec.array("settled").any()
 
 
 @pytest.mark.parametrize("fault, muscle, kept, stop", [

@@ -24,8 +24,8 @@ class Target:
 
     ``approach_length``: every muscle length-controlled at the geometric length minus the
     stretch of a low pretension (moves the arm to the pose; some wires may be slack).
-    ``hold_mode``/``hold_command``: slack removal. ``held`` muscles (the most loaded ones whose
-    Jacobian rows span the joints) keep a length that gives their QP tension at the pose, the
+    ``hold_mode``/``hold_command``: slack removal. ``held`` muscles (loaded ones whose
+    Jacobian rows span the joints well) keep a length that gives their QP tension at the pose, the
     others are tension-controlled at their QP tension: the pose stays fixed by the held
     muscles and, since the QP tensions balance gravity, nobody fights.
     """
@@ -79,19 +79,22 @@ class CollectionPlan:
                 if self.map_kind == "al" else list(ATL_F_MIN)}
 
 
-def held_muscles(G: np.ndarray, tension: np.ndarray) -> np.ndarray:
-    """Mask of the most loaded muscles whose rows of G (M, N) span the joint space.
+def held_muscles(G: np.ndarray, tension: np.ndarray, slack: float = 0.5) -> np.ndarray:
+    """Mask of N loaded muscles whose rows of G (M, N) span the joints well.
 
-    Holding the load-bearing muscles in length keeps the pose stiff (elastic elements are
-    stiffest under load); the rest only need to be kept off slack.
+    Holding load-bearing muscles in length keeps the pose stiff (elastic elements are stiffest
+    under load), but only if their moment arms span every joint direction: a nearly singular
+    set lets the arm drift along the weak direction. Greedy: each pick is the most loaded of
+    the muscles that keep the smallest singular value of the picked rows within ``slack`` of
+    the best pick possible.
     """
     n_joints = G.shape[1]
     chosen: list[int] = []
-    for m in np.argsort(-tension, kind="stable"):
-        if np.linalg.matrix_rank(G[chosen + [int(m)]], tol=1e-9) > len(chosen):
-            chosen.append(int(m))
-        if len(chosen) == n_joints:
-            break
+    for k in range(n_joints):
+        rest = [m for m in range(len(tension)) if m not in chosen]
+        sigma = np.array([np.linalg.svd(G[chosen + [m]], compute_uv=False)[k] for m in rest])
+        ok = [m for m, s in zip(rest, sigma, strict=True) if s >= slack * sigma.max()]
+        chosen.append(max(ok, key=lambda m: tension[m]))
     mask = np.zeros(len(tension), dtype=bool)
     mask[chosen] = True
     return mask

@@ -82,7 +82,7 @@ class LiveReporter:
 def summary_lines(s: Summary) -> list[str]:
     """The end-of-run summary (also after Ctrl-C, a safety stop or a full disk)."""
     state = "complete" if s.complete else f"STOPPED: {s.stopped}" if s.stopped else "incomplete"
-    lines = [f"{state}: {s.path}",
+    lines = [f"collection {state}", f"  file {s.path}",
              f"  rows in file {s.rows} of {s.total} planned  (this run {s.written}, "
              f"before {s.already}); next sample {s.next_sample}",
              f"  time {_duration(s.elapsed)}, {s.rate_per_min:.1f} samples/min, "
