@@ -142,7 +142,7 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
         if data is not None:
             data.len_weight, noise = length_weights(first, data)
             info.setdefault("noise_estimate", noise)
-    degree = choose_degree(lambda d: make(d, start), real if ref is None else ref, degrees)
+    degree = choose_degree(lambda d: make(d, start), real, degrees)
     if kappa is None:
         if ref is None:
             raise DiagnosisInputError("need a reference recording or a robot description to "
