@@ -255,3 +255,27 @@ def test_user_errors_say_what_to_do(tmp_path, monkeypatch):
     assert res.exit_code == 1 and "no working arm on port 'default'" in res.output
     assert "--robot two-link-4-muscle" in res.output and "Traceback" not in res.output
     assert not out.exists()
+
+
+def test_robot_file_that_does_not_match_the_boards(tmp_path, monkeypatch):
+    """Boards of two-link-4-muscle on the bus, a description with a fifth muscle (board 5)."""
+    import yaml
+
+    from calibration.description import load_robot
+    from pimbs_hw.mock import MockArm
+
+    robots = Path(load_robot("two-link-4-muscle").muscle_path).parent
+    (tmp_path / "two-link-4-muscle.urdf").write_text(
+        (robots / "two-link-4-muscle.urdf").read_text())
+    desc = yaml.safe_load((robots / "two-link-4-muscle.muscles.yaml").read_text())
+    desc["muscles"].append({**desc["muscles"][0], "name": "m4", "board_id": 5})
+    wrong = tmp_path / "wrong.muscles.yaml"
+    wrong.write_text(yaml.safe_dump(desc))
+    channel = f"mismatch-{os.getpid()}"
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", channel)
+    with MockArm("two-link-4-muscle", f"virtual:{channel}"):
+        res = _collect(tmp_path / "m.parquet", "--robot", str(wrong), "--samples", 2,
+                       port="default")
+    assert res.exit_code == 1 and "m4 (board 5)" in res.output
+    assert "describes the boards on this bus" in res.output and "Traceback" not in res.output

@@ -50,8 +50,9 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
-                f"the port is right, check that --robot {robot.name} describes the boards on "
-                f"this bus (board ids {', '.join(str(m.board_id) for m in robot.muscles)})"
+                f"the port is right, check that --robot {robot.name} ({robot.muscle_path}) "
+                f"describes the boards on this bus (board ids "
+                f"{', '.join(str(m.board_id) for m in robot.muscles)})"
             ) from stop
         yield DriverLink(driver, mock)
 
