@@ -133,7 +133,8 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
 
     console = Console(stderr=True)
     collector = None
-    error: str | None = None
+    error: str | None = None  # the full message: what happened and what to do
+    reason: str | None = None  # what happened, for the summary
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
                        speed=moves.speed) as link:
@@ -147,13 +148,14 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
         if collector is not None:
             collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
     except SafetyStop as stop:
-        error = stop_advice(stop)
+        reason, error = str(stop), stop_advice(stop)
     except RecordingWriteError as exc:
+        reason = str(exc)
         error = (f"{exc}. The arm was relaxed; samples written so far are safe. "
                  f"Free disk space, then rerun with --resume.")
     if collector is not None:
-        if error:
-            collector.summary.stopped = error.split(". ")[0]
+        if reason:
+            collector.summary.stopped = reason
         for line in summary_lines(collector.summary):
             click.echo(line)
     if error:

@@ -173,7 +173,12 @@ def test_concealed_offset_pairs_with_simulate_and_shows(arm, tmp_path):
     assert res.exit_code == 0, res.output
     real = read_recording(out)
     assert "tension_offset" not in str(real.meta)  # concealed: labelled nowhere
-    clean, _ = simulate(arm, n, "atl", seed=seed)
+    sim = tmp_path / "sim.parquet"  # `pimbs simulate` of the same seed, no effect
+    assert CliRunner().invoke(main, ["simulate", "--samples", n, "--seed", seed,
+                                     "--out", str(sim)]).exit_code == 0
+    rec = read_recording(sim)
+    clean = {k: rec.array(k) for k in ("theta", "tension", "tau_gravity", "theta_command",
+                                       "sample")}
     twin, _ = simulate(arm, n, "atl", seed=seed,
                        effects=(parse_effect("tension_offset:20,muscles=m1"),))
     np.testing.assert_array_equal(real.theta_command, clean["theta_command"])
