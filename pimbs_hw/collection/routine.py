@@ -10,6 +10,7 @@ the sample in progress.
 
 from __future__ import annotations
 
+import concurrent.futures
 import datetime as dt
 import time
 from collections.abc import Callable
@@ -126,7 +127,7 @@ class Collector:
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
             row = self._row(i, target.theta, held, prev_length)
-            self.writer.append(row)
+            self._append_holding(row, target)
             reading, theta, prev_length = held.reading, row["theta"], held.reading.length
             self._account(i, held, row)
         return self.summary
@@ -142,6 +143,24 @@ class Collector:
                 "tau_gravity": self.model.gravity_torque(theta),
                 # extra columns: how the sample settled (data quality, kept by all tools)
                 "settled": bool(held.settled), "settle_s": float(held.elapsed)}
+
+    def _append_holding(self, row: dict[str, Any], target) -> None:
+        """Write the row while still holding the pose (commands feed the board watchdogs).
+
+        Each append rewrites the file with fsync: tens of ms at 500 rows here, longer on a
+        slow disk, which must not starve the 0.25 s watchdog. The next pose is commanded only
+        once the row is on disk; a stop while writing still waits for the write to finish.
+        """
+        with concurrent.futures.ThreadPoolExecutor(1, "recording-writer") as pool:
+            done = pool.submit(self.writer.append, row)
+            try:
+                while not done.done():
+                    self.link.command(target.hold_mode, target.hold_command)
+                    self.link.read()
+                    concurrent.futures.wait([done], timeout=self.settle.poll)
+            finally:
+                concurrent.futures.wait([done])
+            done.result()  # re-raises RecordingWriteError (disk full)
 
     def _theta(self, r: Reading, guess: np.ndarray) -> np.ndarray:
         """Joint encoders where the robot has them, else the model's estimate."""

@@ -12,7 +12,7 @@ from collections.abc import Iterator, Sequence
 
 from calibration.description import RobotDescription
 from calibration.effects import parse_effect
-from pimbs_hw import open_arm
+from pimbs_hw import is_simulated, open_arm
 from pimbs_hw.collection.link import DriverLink
 from pimbs_hw.errors import HardwareError
 from pimbs_hw.safety import (
@@ -23,10 +23,16 @@ from pimbs_hw.safety import (
     LinkLost,
     LoadcellSaturated,
     Overheat,
+    SafetyLimits,
     SafetyStop,
     TensionLimit,
     WatchdogExpired,
 )
+
+# The simulated boards run in this process: their physics solver competes with the collection
+# loop for the CPU (and the GIL), so on a loaded machine the loop can miss the real boards'
+# 0.25 s watchdog although nothing hangs. Real boards have their own CPU and keep the default.
+SIMULATED_LIMITS = SafetyLimits(watchdog_s=0.6)
 
 
 class ConnectError(HardwareError):
@@ -46,7 +52,7 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed))
+                speed=speed, limits=SIMULATED_LIMITS if is_simulated(port) else None))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
