@@ -25,7 +25,7 @@ from calibration.simulate import approach_direction
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
-from pimbs_hw.collection.plan import CollectionPlan
+from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 
 
@@ -144,7 +144,7 @@ class Collector:
                 # extra columns: how the sample settled (data quality, kept by all tools)
                 "settled": bool(held.settled), "settle_s": float(held.elapsed)}
 
-    def _append_holding(self, row: dict[str, Any], target) -> None:
+    def _append_holding(self, row: dict[str, Any], target: Target) -> None:
         """Write the row while still holding the pose (commands feed the board watchdogs).
 
         Each append rewrites the file with fsync: tens of ms at 500 rows here, longer on a
