@@ -131,3 +131,17 @@ def test_recordings_that_do_not_pair_are_refused(tmp_path, arm):
         diagnose(other, ref)
     r = CliRunner().invoke(main, ["diagnose", str(real)])
     assert r.exit_code == 1 and "--reference" in r.output
+
+
+def test_offset_of_a_joint_gravity_cannot_see_is_found_in_the_lengths(tmp_path):
+    """A forearm roll barely changes gravity torque; with the routing matching the
+    reference, the tied schema sees its zero error in the muscle lengths."""
+    arm5 = ArmModel.load("left-arm-5dof")
+    ref = _write(tmp_path, arm5, "sim", n=300)
+    real = _write(tmp_path, arm5, "real", ["joint_offset:0.04,joints=forearm_yaw"], n=300)
+    result, _ = diagnose(real, ref)
+    assert "reference" in result["model"]["schema"]
+    top = result["effects"][0]
+    assert top["name"] == "joint_offset" and top["joints"] == ["forearm_yaw"]
+    assert abs(top["parameters"]["forearm_yaw"]["offset_rad"] - 0.04) < 0.004
+    assert result["fit"]["after"] < 0.9 * result["fit"]["before"]

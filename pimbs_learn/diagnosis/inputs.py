@@ -9,7 +9,7 @@ gravity where the real file has none.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from pimbs_learn.diagnosis.model import (
     Samples,
     Unit,
     apply_effects,
+    fit_schema,
     residuals,
     schema_jacobian,
 )
@@ -157,4 +158,35 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
         info["kappa_source"] = "description"
     info["kappa"] = start.tolist()
     info["schema_degree"] = degree
-    return make(degree, start), info
+    physics = make(degree, start)
+    info["schema"] = "learned from the real recording"
+    if ref is not None:
+        tied = tie_to_reference(physics, real, ref)
+        if tied is not None:
+            physics = tied
+            info["schema"] = "the reference's (the real routing matches it)"
+    return physics, info
+
+
+ROUTING_MATCH = 2.0  # tied length residuals within this factor of free ones: same routing
+
+
+def tie_to_reference(physics: Physics, real: Samples, ref: Samples) -> Physics | None:
+    """The reference's body schema, if the real arm's routing matches it.
+
+    Routing is a nuisance the real data can teach, at a price: a learned schema absorbs any
+    pure shift of a joint's zero, which gravity cannot reveal for joints whose rotation
+    does not lift the arm (a forearm's roll). When the reference's schema, shifted by the
+    best joint offsets, explains the real lengths about as well as a freely learned one,
+    the routing is the same and the tighter, tied model is used.
+    """
+    ref_state = apply_effects(physics, ref, [], np.zeros(0))
+    tied = replace(physics, tied=fit_schema(physics, ref_state, ref), _cache={})
+    # Both sides may also rescale the elasticity: a stiffness error must not pass for (or
+    # hide) a routing difference.
+    elastic = [Unit("elastic_stiffness", j) for j in range(real.tension.shape[1])]
+    free = fit_effects(physics, real, elastic, passes=1)
+    shifts = [Unit("joint_offset", k) for k in range(real.theta.shape[1])]
+    shifted = fit_effects(tied, real, elastic + shifts, passes=1)
+    ratio = np.median(shifted.sigma_len / free.sigma_len)
+    return tied if ratio < ROUTING_MATCH else None

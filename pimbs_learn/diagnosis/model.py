@@ -101,6 +101,9 @@ class Physics:
     gravity: GravityFunction
     temp_mean: np.ndarray        # (M,) T̄ used by thermal_drift
     ridge: float = 1e-9
+    # (P, M) schema of the reference, when the real arm's routing matches it: then only a
+    # constant per muscle is refitted, and a joint offset shows in the lengths too.
+    tied: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def basis_at(self, theta: np.ndarray, key, weight: np.ndarray | None = None
@@ -187,6 +190,11 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
     """Least-squares body schema weights (P, M) on these samples."""
     values, _, factors = physics.basis_at(state.theta, key, data.len_weight)
     y = schema_target(state, data)
+    if physics.tied is not None:  # refit only the constant (monomial 0 is the constant)
+        w2 = np.ones_like(y) if data.len_weight is None else data.len_weight**2
+        weights = physics.tied.copy()
+        weights[0] += np.sum(w2 * (y - values @ physics.tied), 0) / np.sum(w2, 0)
+        return weights
     if len(factors) == 1:
         return cho_solve(factors[0], values.T @ y)
     w2 = data.len_weight**2

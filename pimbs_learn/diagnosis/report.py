@@ -37,7 +37,7 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
             k_model = 1.0 / abs(physics.kappa[unit.index])
             params[muscles[unit.index]] = {
                 "stiffness_ratio": ratio, "se": None if se is None else se * ratio**2,
-                "K_model": k_model, "K_estimated": k_model * ratio}
+                "K_model": float(k_model), "K_estimated": float(k_model * ratio)}
         elif cand.effect == "thermal_drift":
             entry = params.setdefault(muscles[unit.index], {})
             if unit.part == "slope":
@@ -107,7 +107,7 @@ def text_report(result: dict) -> str:
                 f" against robot description {result.get('robot')}"),
              f"  {result['rows']} paired samples, {len(result['joints'])} joints, "
              f"{len(result['muscles'])} muscles; body schema: degree-"
-             f"{result['model']['schema_degree']} polynomial learned from the real data", "",
+             f"{result['model']['schema_degree']} polynomial, {result['model']['schema']}", "",
              "Where it disagrees (before any effect is modelled):"]
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")

@@ -37,6 +37,9 @@ from pimbs_learn.diagnosis.model import (
 P_VALUE = 1e-6      # per test; strict, since recordings have hundreds of rows
 MIN_CV_GAIN = 0.05  # held-out score must improve by at least 5 %
 MAX_EFFECTS = 3
+# A link's mass: one subtree. Subtrees' potentials overlap, so two would trade off
+# against each other with meaningless, cancelling scales.
+MAX_GROUPS = {"link_mass": 1}
 FD_STEP = {"tension_offset": 1e-2, "thermal_drift": 1e-3, "tendon_friction": 1e-4,
            "elastic_stiffness": 1e-4, "joint_offset": 1e-6, "link_mass": 1e-4}
 
@@ -87,7 +90,7 @@ def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit
             cols[u] = (plus - r0) / step
     chosen: list[list[Unit]] = []
     rss = float(r0 @ r0)
-    while len(chosen) < len(groups):
+    while len(chosen) < min(len(groups), MAX_GROUPS.get(effect, len(groups))):
         best, best_rss = None, rss
         for group in groups:
             if group in chosen:
