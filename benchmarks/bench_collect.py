@@ -3,12 +3,12 @@
     .venv/bin/python benchmarks/bench_collect.py [--samples 15] [--speed 1] [--waits 0.25 0.5 1]
 
 Runs the real routine (ramps, settling, crash-safe writes) against the simulated boards on a
-python-can virtual bus, once with settle detection and once per fixed wait (per move, so two
-waits per sample), and prints samples/minute next to two data-quality numbers, because a
-fixed wait is only faster by being too short: the RMS torque-balance residual |−Gᵀf − τ|
-(N·m; sensor noise alone gives about 0.005) and the worst |θ − θ_command| (rad). ``--speed``
-is the mock's time speed-up (1 = real time; the dynamics settle with a 75 ms time constant
-plus a 10-60 ms solver latency per new command).
+python-can virtual bus, once with settle detection and once per fixed wait (in place of the
+detection before the reading; the rest of the routine is the same), and prints samples/min
+next to two data-quality numbers, because a fixed wait is only faster by being too short:
+the RMS torque-balance residual |−Gᵀf − τ| (N·m; sensor noise alone gives about 0.005) and
+the worst |θ − θ_command| (rad). ``--speed`` is the mock's time speed-up (1 = real time; the
+dynamics settle with a 75 ms time constant plus a 10-60 ms solver latency per new command).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=15)
     parser.add_argument("--speed", type=float, default=1.0)
     parser.add_argument("--waits", type=float, nargs="+", default=[0.25, 0.5, 1.0],
-                        help="fixed waits per move, s (at speed 1; divided by --speed)")
+                        help="fixed waits before each reading, s (at speed 1; divided by --speed)")
     args = parser.parse_args()
     model = ArmModel.load("two-link-4-muscle")
     configs = [("settle detection", SettleConfig())] + [

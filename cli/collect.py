@@ -77,7 +77,7 @@ def _stop_on_signals() -> Iterator[None]:
 @click.option("--settle-timeout", type=click.FloatRange(min=0, min_open=True), default=5.0,
               show_default=True, help="s; an unsettled sample is recorded, flagged and warned")
 @click.option("--fixed-wait", type=click.FloatRange(min=0), default=None,
-              help="s: wait this long per move instead of detecting settling")
+              help="s: wait this long before each reading instead of detecting settling")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
 @user_errors

@@ -1,9 +1,11 @@
 """The collection loop: per sample, move to the pose, remove slack, settle, read, write.
 
 Order of events for sample i (see ``plan.Target``): every muscle length-controlled, ramped
-to the geometric length of a low pretension (the arm moves there; ``move.py``), settle; then
-the load-bearing muscles held in length and the others tension-controlled, ramped to the QP
-tensions (slack removed, pose kept), settle, read, and append one row. The row is on disk
+to the geometric length of a low pretension (the arm moves there; ``move.py``) until the
+motors are near those lengths; then the load-bearing muscles held in length and the others
+tension-controlled, ramped to the QP tensions (slack removed, pose kept), settle (the one
+full wait: the arm's creep from the move ends during the slack removal), read, and append
+one row. The row is on disk
 (atomically) before the next pose is commanded, so an interruption of any kind loses at most
 the sample in progress.
 """
@@ -121,7 +123,7 @@ class Collector:
                 reading = run_ramp(self.link, release(model, reading, previous, cfg))
             run_ramp(self.link, move(model, reading, theta, target, cfg))
             moved = hold_until_settled(self.link, "length", target.approach_length,
-                                       self.settle, muscles)
+                                       self.settle.reached(), muscles)
             run_ramp(self.link, take_up_slack(moved.reading, target, cfg))
             previous = target
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,

@@ -21,7 +21,7 @@ from __future__ import annotations
 import collections
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -43,6 +43,16 @@ class SettleConfig:
 
     def meta(self) -> dict:
         return {k: v for k, v in asdict(self).items() if k != "poll"}
+
+    def reached(self, length_tol: float = 1e-3) -> SettleConfig:
+        """End of a move: motors within ``length_tol`` of their commands, no quiet window.
+
+        The slack removal that follows may start while the arm still creeps (it ramps from
+        the current readings, and the final settle waits for rest), but not while a slow motor
+        is still far from its length.
+        """
+        return replace(self, length_tol=length_tol, tension_tol=np.inf, theta_tol=np.inf,
+                       window=0.0, min_readings=2, fixed_wait=None)
 
 
 @dataclass
