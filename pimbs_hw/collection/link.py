@@ -11,6 +11,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from calibration.approach import ApproachTracker
+
 
 @dataclass(frozen=True)
 class Reading:
@@ -57,3 +59,34 @@ class DriverLink:
     def begin_sample(self, index: int) -> None:
         if self.mock is not None:
             self.mock.set_sample(index)
+
+
+class ApproachLink:
+    """An ``ArmLink`` that follows every length it reads, to know each muscle's approach.
+
+    The direction recorded with a sample is that of the last real motion into the pose
+    (see :mod:`calibration.approach`), not the difference between two samples: the slack
+    removal after a move often reverses a muscle, and friction follows the reversal.
+    """
+
+    def __init__(self, link: ArmLink, n_muscles: int) -> None:
+        self.link = link
+        self.tracker = ApproachTracker(n_muscles)
+
+    @property
+    def approach(self) -> np.ndarray:
+        return self.tracker.direction.copy()
+
+    def command(self, mode: tuple[str, ...] | str, values: np.ndarray) -> None:
+        self.link.command(mode, values)
+
+    def read(self) -> Reading:
+        reading = self.link.read()
+        self.tracker.update(reading.length)
+        return reading
+
+    def relax(self) -> None:
+        self.link.relax()
+
+    def begin_sample(self, index: int) -> None:
+        self.link.begin_sample(index)

@@ -23,9 +23,8 @@ import numpy as np
 
 from calibration.arm_model import ArmModel, InfeasiblePoseError
 from calibration.recording import RecordingWriter
-from calibration.simulate import approach_direction
 from pimbs_hw.collection.estimate import estimate_theta
-from pimbs_hw.collection.link import ArmLink, Reading
+from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
@@ -97,7 +96,8 @@ class Collector:
                  writer: RecordingWriter, start: int, settle: SettleConfig,
                  reporter: Reporter | None = None, move: MoveConfig | None = None,
                  now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC)) -> None:
-        self.link, self.model, self.plan, self.writer = link, model, plan, writer
+        self.link = ApproachLink(link, model.n_muscles)
+        self.model, self.plan, self.writer = model, plan, writer
         self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
         self.move = move or MoveConfig()
         self.summary = Summary(path=str(writer.path), total=plan.n_samples, start=start,
@@ -108,7 +108,6 @@ class Collector:
         reading = self.link.read()  # the first pose is approached from where the arm is
         theta = self._theta(reading, np.zeros(self.model.n_joints))
         previous = None  # target the arm is loaded at (None: relaxed)
-        prev_length = reading.length
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
             try:
@@ -128,20 +127,19 @@ class Collector:
             previous = target
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
-            row = self._row(i, target.theta, held, prev_length)
+            row = self._row(i, target.theta, held)
             self._append_holding(row, target)
-            reading, theta, prev_length = held.reading, row["theta"], held.reading.length
+            reading, theta = held.reading, row["theta"]
             self._account(i, held, row)
         return self.summary
 
-    def _row(self, i: int, theta_command: np.ndarray, held: Settled,
-             prev_length: np.ndarray) -> dict[str, Any]:
+    def _row(self, i: int, theta_command: np.ndarray, held: Settled) -> dict[str, Any]:
         r = held.reading
         theta = self._theta(r, theta_command)
         return {"sample": i, "time": np.datetime64(self.now().replace(tzinfo=None), "us"),
                 "theta": theta, "theta_command": theta_command, "tension": r.tension,
                 "length": r.length, "temperature": r.temperature,
-                "approach": approach_direction(prev_length, r.length),
+                "approach": self.link.approach,
                 "tau_gravity": self.model.gravity_torque(theta),
                 # extra columns: how the sample settled (data quality, kept by all tools)
                 "settled": bool(held.settled), "settle_s": float(held.elapsed)}

@@ -14,6 +14,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from calibration.approach import ApproachTracker
+
 log = logging.getLogger(__name__)
 
 
@@ -93,6 +95,8 @@ class Plant:
                                 np.asarray(eq.length, float), self.ambient_c.copy(),
                                 np.zeros(m, dtype=int))
         self._command = (modes, values)
+        self._approach = ApproachTracker(m)
+        self._approach.update(self.state.length)
         self._solver = _Solver(model, self.state.theta)
         self._solver.target = eq
 
@@ -120,8 +124,7 @@ class Plant:
         s, target = self.state, self._solver.target
         a = 1.0 - np.exp(-dt * self.speed / self.tau_s)
         length = s.length + a * (target.length - s.length)
-        moved = np.abs(length - s.length) > 1e-7
-        approach = np.where(moved, np.sign(length - s.length).astype(int), s.approach)
+        approach = self._approach.update(length).astype(int)
         b = 1.0 - np.exp(-dt * self.speed / self.tau_thermal_s)
         hot = self.ambient_c + self.heat_c_per_n * np.abs(s.tension)
         temperature = s.temperature + b * (hot - s.temperature) + self.heat_rate_c_per_s * dt
