@@ -83,17 +83,23 @@ def cross_validate(physics: Physics, data: Samples, units: list[Unit],
     that models compare on one scale) and the physical RMS of each channel.
     """
     s_len, s_tau = sigma
-    sq, lens, taus = [], [], []
+    sq, lens, taus, order = [], [], [], []
     for i, test in enumerate(folds(data.n, k)):
         train_idx = np.setdiff1d(np.arange(data.n), test)
         train = data.rows(train_idx)
         fit = fit_effects(physics, train, units, x0=x0, sigma=sigma, key=("cv", i), passes=1)
         r_len, r_tau = evaluate(physics, fit, data.rows(test))
-        sq.append(_whiten(r_len, r_tau, s_len, s_tau) ** 2)
+        per_sample = np.hstack([r_len / s_len, r_tau / s_tau]) ** 2
+        sq.append(per_sample.sum(axis=1))
+        order.append(test)
         lens.append(r_len)
         taus.append(r_tau)
     r_len, r_tau = np.concatenate(lens), np.concatenate(taus)
-    return {"score": float(np.mean(np.concatenate(sq))),
+    per_sample = np.empty(data.n)
+    per_sample[np.concatenate(order)] = np.concatenate(sq)
+    channels = r_len.shape[1] + r_tau.shape[1]
+    return {"score": float(per_sample.mean() / channels),
+            "per_sample": per_sample,
             "length_rms": float(np.sqrt(np.mean(r_len**2))),
             "torque_rms": float(np.sqrt(np.mean(r_tau**2)))}
 

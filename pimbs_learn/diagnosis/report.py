@@ -95,7 +95,7 @@ def effect_entry(cand: Candidate, physics: Physics, data: Samples, joints: list[
         "parameters": params,
         "evidence": {
             "likelihood_ratio": cand.lr, "df": cand.df, "p_value": cand.p_value,
-            "delta_bic": float(cand.delta_bic), "cv_gain": cand.cv_gain,
+            "delta_bic": float(cand.delta_bic), "cv_gain": cand.cv_gain, "cv_z": cand.cv_z,
             "heldout_before": cand.cv_before["score"], "heldout_after": cand.cv_after["score"],
         },
     }

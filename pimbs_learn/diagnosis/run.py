@@ -76,13 +76,19 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
         "location": location,
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
-                        "cv_gain": c.cv_gain, "named": c in named} for c in tried],
+                        "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
+                        "named": c in named} for c in tried],
         "model": {**model_info, "noise_torque_Nm": null.sigma_tau.tolist(),
                   "noise_length_m": null.sigma_len.tolist()},
     }
     internals = {"physics": physics, "data": data, "null": null, "final": final,
                  "paired": paired, "recording": real_rec}
     return result, internals
+
+
+def _finite(x: float) -> float | None:
+    """JSON has no NaN: a statistic that was not computed is null."""
+    return float(x) if np.isfinite(x) else None
 
 
 def write_corrected(internals: dict, path: str | Path) -> None:

@@ -8,8 +8,10 @@ it is named:
 * a likelihood-ratio test against the current model (p below ``P_VALUE``);
 * ΔBIC > 0, which also ranks effects and prefers the simpler of nested ones (an offset
   over a thermal drift that only adds a flat slope);
-* five-fold cross-validation: held-out residuals must shrink by ``MIN_CV_GAIN``, so
-  structure that a flexible effect could absorb on the training rows is not reported.
+* five-fold cross-validation: held-out residuals must shrink, by ``MIN_CV_GAIN`` overall
+  and significantly sample by sample (paired z ≥ ``MIN_CV_Z``), so structure that a
+  flexible effect could absorb on the training rows is not reported, while an effect on a
+  few muscles of many still is.
 
 Effects are added one at a time (forward selection); the strongest comes first.
 """
@@ -35,7 +37,8 @@ from pimbs_learn.diagnosis.model import (
 )
 
 P_VALUE = 1e-6      # per test; strict, since recordings have hundreds of rows
-MIN_CV_GAIN = 0.05  # held-out score must improve by at least 5 %
+MIN_CV_GAIN = 0.01  # held-out score must improve by at least 1 % ...
+MIN_CV_Z = 5.0      # ... and significantly: paired z of per-sample held-out residuals
 MAX_EFFECTS = 3
 # A link's mass: one subtree. Subtrees' potentials overlap, so two would trade off
 # against each other with meaningless, cancelling scales.
@@ -63,9 +66,17 @@ class Candidate:
         return 1.0 - self.cv_after["score"] / self.cv_before["score"]
 
     @property
+    def cv_z(self) -> float:
+        """Paired z statistic of the held-out improvement, sample by sample."""
+        if self.cv_after is None:
+            return float("nan")
+        d = self.cv_before["per_sample"] - self.cv_after["per_sample"]
+        return float(d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300))
+
+    @property
     def significant(self) -> bool:
         return (self.cv_after is not None and self.p_value < P_VALUE and self.delta_bic > 0
-                and self.cv_gain >= MIN_CV_GAIN)
+                and self.cv_gain >= MIN_CV_GAIN and self.cv_z >= MIN_CV_Z)
 
 
 def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.ndarray,
@@ -143,7 +154,9 @@ def _prefer_simpler(physics: Physics, data: Samples, best: Candidate,
         _cross_validate(physics, data, other, base)
     extra_df = max(best.df - other.df, 1)
     gain = 1.0 - best.cv_after["score"] / other.cv_after["score"]
-    if (chi2.sf(best.lr - other.lr, extra_df) < P_VALUE and gain >= MIN_CV_GAIN / 2
+    d = other.cv_after["per_sample"] - best.cv_after["per_sample"]
+    z = d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300)
+    if (chi2.sf(best.lr - other.lr, extra_df) < P_VALUE and gain >= MIN_CV_GAIN and z >= MIN_CV_Z
             and other.significant):
         return best
     return other if other.significant else best
