@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-BAND_M = 2e-4  # m of travel back that reverses the friction
+BAND_M = 5e-4  # m of travel back that reverses the friction (stable with μ up to ~0.5)
 
 
 class ApproachTracker:
@@ -36,3 +36,26 @@ class ApproachTracker:
         self.direction = np.where(flip, np.sign(moved), d).astype(np.int8)
         self._extreme = np.where(flip, x, ext)
         return self.direction.copy()
+
+
+class FrictionPlay:
+    """Continuous friction state s ∈ [−1, 1] of each muscle (the simulated boards' view).
+
+    A capstan sticks within its band: as the motor reverses, the loadcell tension moves
+    continuously from ``f·e^{−μ}`` towards ``f·e^{+μ}`` over ``band`` metres of travel,
+    rather than jumping. A jump would itself move the elastic element by more than the band
+    and reverse the friction again: a limit cycle that no real tendon shows. Effects read
+    ``s`` in place of the discrete approach direction.
+    """
+
+    def __init__(self, n_muscles: int, band: float = BAND_M) -> None:
+        self.band = band
+        self.state = np.zeros(n_muscles)
+        self._last: np.ndarray | None = None
+
+    def update(self, length: np.ndarray) -> np.ndarray:
+        x = np.asarray(length, dtype=float)
+        if self._last is not None:
+            self.state = np.clip(self.state + (x - self._last) / self.band, -1.0, 1.0)
+        self._last = x.copy()
+        return self.state.copy()

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calibration.approach import ApproachTracker
+from calibration.approach import FrictionPlay
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +25,7 @@ class PlantState:
     tension: np.ndarray  # (M,) N, true (joint-side) tension
     length: np.ndarray  # (M,) m, motor-side length
     temperature: np.ndarray  # (M,) °C
-    approach: np.ndarray  # (M,) +1 lengthened into the pose, -1 shortened, 0 unknown
+    approach: np.ndarray  # (M,) friction state in [-1, 1]: +1 paid out last, -1 pulled in
 
 
 class _Solver:
@@ -93,10 +93,10 @@ class Plant:
         eq = model.equilibrium(list(modes), values)
         self.state = PlantState(np.asarray(eq.theta, float), np.asarray(eq.tension, float),
                                 np.asarray(eq.length, float), self.ambient_c.copy(),
-                                np.zeros(m, dtype=int))
+                                np.zeros(m))
         self._command = (modes, values)
-        self._approach = ApproachTracker(m)
-        self._approach.update(self.state.length)
+        self._play = FrictionPlay(m)
+        self._play.update(self.state.length)
         self._solver = _Solver(model, self.state.theta)
         self._solver.target = eq
 
@@ -124,7 +124,7 @@ class Plant:
         s, target = self.state, self._solver.target
         a = 1.0 - np.exp(-dt * self.speed / self.tau_s)
         length = s.length + a * (target.length - s.length)
-        approach = self._approach.update(length).astype(int)
+        approach = self._play.update(length)
         b = 1.0 - np.exp(-dt * self.speed / self.tau_thermal_s)
         hot = self.ambient_c + self.heat_c_per_n * np.abs(s.tension)
         temperature = s.temperature + b * (hot - s.temperature) + self.heat_rate_c_per_s * dt
