@@ -73,7 +73,8 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
         for spec, g in groups:
             bar.update(task, description=spec.key)
             results.append(run_table(spec, g, options, stack=device == "cuda",
-                                     on_epochs=lambda k: bar.advance(task, k)))
+                                     on_epochs=lambda k: bar.advance(task, k),
+                                     log=console.log))
 
     for t in results:
         table = Table(title=f"{t.spec.title} — L_eval^best ×1e5, {seeds} seeds, "

@@ -129,7 +129,8 @@ def table_runs(spec: TableSpec, data_dir: Path, seeds: int,
 
 def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
               options: TrainOptions, stack: bool,
-              on_epochs: Callable[[int], None]) -> TableResult:
+              on_epochs: Callable[[int], None],
+              log: Callable[[str], None] = lambda _: None) -> TableResult:
     """Train every run of a table; ``stack`` trains all runs of one N together.
 
     Stacking pays on a GPU (one launch per op for all runs). On this CPU it measured ~3x
@@ -149,6 +150,7 @@ def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
             out = train_runs([r for _, r in batch], options, progress=tick)
             for (method, _), res in zip(batch, out, strict=True):
                 results.setdefault((method.label, n), []).append(res)
+        log(f"{spec.key} N_train={n}: {len(items)} runs done")
     return TableResult(spec, results)
 
 
