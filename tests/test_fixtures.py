@@ -1,0 +1,58 @@
+"""Committed fixture recordings: files written by another tool are read, broken ones are
+refused, and the installed `pimbs` command (not the source tree) runs from anywhere."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from calibration.recording import RecordingError, read_recording
+from pimbs_learn.diagnosis.run import diagnose
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+
+
+def test_other_tools_recording_is_read_with_its_extras():
+    rec = read_recording(FIXTURES / "other_tool_plain_lists.parquet")
+    assert rec.n_rows == 12 and rec.source == "import" and rec.meta["bag"] == "run_07.bag"
+    assert rec.extra_columns == ["operator"]
+    assert rec.tension.dtype.name == "float64" and rec.tension.shape == (12, 4)
+
+
+def test_broken_recording_is_refused_by_name():
+    with pytest.raises(RecordingError, match="bad_wrong_length.parquet: column 'tension'"):
+        read_recording(FIXTURES / "bad_wrong_length.parquet")
+
+
+def test_fixture_offset_is_diagnosed():
+    result, _ = diagnose(FIXTURES / "two_link_offset.parquet", FIXTURES / "two_link_sim.parquet")
+    assert result["effects"][0]["name"] == "tension_offset"
+    assert result["effects"][0]["muscles"] == ["m2"]
+
+
+def _pimbs() -> list[str]:
+    exe = shutil.which("pimbs", path=str(Path(sys.executable).parent))
+    return [exe] if exe else [sys.executable, "-m", "cli.main"]
+
+
+def test_installed_command_finds_robot_descriptions_from_any_directory(tmp_path):
+    """Run outside the checkout, so a non-editable install must carry calibration/robots."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    out = tmp_path / "sim.parquet"
+    for robot in ("two-link-4-muscle", "left-arm-5dof"):
+        r = subprocess.run([*_pimbs(), "simulate", "--robot", robot, "--samples", "5",
+                            "--out", str(out)], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        r = subprocess.run([*_pimbs(), "info", str(out)], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and robot in r.stdout
+    bad = subprocess.run([*_pimbs(), "info", str(FIXTURES / "bad_wrong_length.parquet")],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr
+    assert "column 'tension'" in bad.stderr
