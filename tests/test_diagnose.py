@@ -145,3 +145,18 @@ def test_offset_of_a_joint_gravity_cannot_see_is_found_in_the_lengths(tmp_path):
     assert top["name"] == "joint_offset" and top["joints"] == ["forearm_yaw"]
     assert abs(top["parameters"]["forearm_yaw"]["offset_rad"] - 0.04) < 0.004
     assert result["fit"]["after"] < 0.9 * result["fit"]["before"]
+
+
+def test_real_recording_without_gravity_column_uses_the_references(tmp_path, arm):
+    """tau_gravity is nullable (a logger with no joint model): the paired simulation's
+    gravity at the same commanded pose stands in."""
+    ref = _write(tmp_path, arm, "sim")
+    data, meta = simulate(arm, 300, "atl", seed=11,
+                          effects=(parse_effect("tension_offset:12,muscles=m0", seed=11),))
+    data["tau_gravity"] = np.full_like(data["tau_gravity"], np.nan)
+    real = tmp_path / "nogravity.parquet"
+    write_recording(real, data, meta)
+    assert np.isnan(read_recording(real).tau_gravity).all()
+    result, _ = diagnose(real, ref)
+    assert result["effects"][0]["name"] == "tension_offset"
+    assert result["effects"][0]["muscles"] == ["m0"]

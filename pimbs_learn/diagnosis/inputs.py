@@ -71,12 +71,19 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
     real_tau = real.tau_gravity
     missing = np.isnan(real_tau).any(axis=1)
     if missing.any():
-        if arm is None:
-            raise DiagnosisInputError(
-                f"{real.path}: {int(missing.sum())} rows have no tau_gravity; pass --robot "
-                "so the gravity torque can be computed from the description")
         real_tau = real_tau.copy()
-        real_tau[missing] = arm.gravity_torque(real.theta[missing])
+        if arm is not None:
+            real_tau[missing] = arm.gravity_torque(real.theta[missing])
+        elif reference is not None:
+            # same commanded pose: the simulator's gravity torque stands in
+            ref_tau = np.full_like(real_tau, np.nan)
+            ref_tau[ia] = reference.tau_gravity[ib]
+            real_tau[missing] = ref_tau[missing]
+        if np.isnan(real_tau).any():
+            raise DiagnosisInputError(
+                f"{real.path}: {int(np.isnan(real_tau).any(axis=1).sum())} rows have no "
+                "tau_gravity; pass --robot so the gravity torque can be computed from the "
+                "description")
     real_s = samples_from(real, real_tau)
     ref_s = None
     if reference is not None:
@@ -84,6 +91,9 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
         ref_tau = reference.tau_gravity[ib]
         gaps = np.isnan(ref_tau).any(axis=1)
         ref_tau[gaps] = real_tau[ia][gaps]  # same commanded pose: the real row's gravity
+        if np.isnan(ref_tau).any():
+            raise DiagnosisInputError(f"{reference.path} and {real.path} both lack "
+                                      "tau_gravity; pass --robot to compute it")
         ref_s = samples_from(reference).rows(ib)
         ref_s.tau = ref_tau
     return Paired(real_s, ref_s, real.joints, real.muscles)
