@@ -42,7 +42,13 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
     )
     from rich.table import Table
 
-    from pimbs_learn.experiment import paper_tables, run_table, save_outputs, table_runs
+    from pimbs_learn.experiment import (
+        paper_tables,
+        run_table,
+        save_outputs,
+        table_cells,
+        table_runs,
+    )
     from pimbs_learn.run import TrainOptions
 
     if threads:
@@ -82,15 +88,8 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
         table.add_column("Method")
         for n in t.spec.n_train:
             table.add_column(f"N_train={n}", justify="right")
-        labels = list(dict.fromkeys(m.label for m in t.spec.methods))
-        best = {n: min(t.cell(lab, n)[0] for lab in labels) for n in t.spec.n_train}
-        for lab in labels:
-            cells = []
-            for n in t.spec.n_train:
-                mean, std = t.cell(lab, n)
-                s = f"{mean:.2f} ± {std:.2f}"
-                cells.append(f"[bold]{s}[/bold]" if mean == best[n] else s)
-            table.add_row(lab, *cells)
+        for lab, cells in table_cells(t):
+            table.add_row(lab, *(f"[bold]{c}[/bold]" if b else c for c, b in cells))
         console.print(table)
     for f in save_outputs(results, out_dir, options, seeds):
         console.print(f"wrote {f}")

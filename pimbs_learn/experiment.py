@@ -154,21 +154,34 @@ def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
     return TableResult(spec, results)
 
 
-def table_markdown(t: TableResult) -> str:
-    """Mean ± std of L_eval^best ×1e5 per method and N_train; best mean in bold."""
+def table_cells(t: TableResult) -> list[tuple[str, list[tuple[str, bool]]]]:
+    """Rows (method label, [(\"mean ± std\", is best mean of its column)]) of a table.
+
+    Three significant digits: well-scaled runs reach L_eval ×1e5 far below 1, where fixed
+    decimals would print zeros.
+    """
     ns = t.spec.n_train
     labels = list(dict.fromkeys(m.label for m in t.spec.methods))
     best = {n: min(t.cell(lab, n)[0] for lab in labels) for n in ns}
-    lines = [f"### {t.spec.title}", "",
-             "| Method | " + " | ".join(f"N_train={n}" for n in ns) + " |",
-             "|---|" + "---:|" * len(ns)]
+    rows = []
     for lab in labels:
         cells = []
         for n in ns:
             mean, std = t.cell(lab, n)
-            s = f"{mean:.2f} ± {std:.2f}"
-            cells.append(f"**{s}**" if mean == best[n] else s)
-        lines.append(f"| {lab} | " + " | ".join(cells) + " |")
+            cells.append((f"{mean:.3g} ± {std:.2g}", mean == best[n]))
+        rows.append((lab, cells))
+    return rows
+
+
+def table_markdown(t: TableResult) -> str:
+    """Mean ± std of L_eval^best ×1e5 per method and N_train; best mean in bold."""
+    ns = t.spec.n_train
+    lines = [f"### {t.spec.title}", "",
+             "| Method | " + " | ".join(f"N_train={n}" for n in ns) + " |",
+             "|---|" + "---:|" * len(ns)]
+    for lab, cells in table_cells(t):
+        lines.append(f"| {lab} | " + " | ".join(f"**{c}**" if b else c for c, b in cells)
+                     + " |")
     return "\n".join(lines) + "\n"
 
 

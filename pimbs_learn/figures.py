@@ -24,8 +24,8 @@ def _pyplot():
 
 
 def plot_curves(t: TableResult, path: Path) -> Path:
-    """L_eval (×1e5, log scale) against epoch: mean over seeds with a ±std band, per
-    method, one panel per N_train."""
+    """L_eval (×1e5, log scale) against epoch: mean over seeds (line) and min–max over
+    seeds (band), per method, one panel per N_train."""
     plt = _pyplot()
     ns = t.spec.n_train
     fig, axes = plt.subplots(1, len(ns), figsize=(5 * len(ns), 4), squeeze=False)
@@ -36,17 +36,17 @@ def plot_curves(t: TableResult, path: Path) -> Path:
             if not len(res[0].curve_eval):
                 continue
             c = np.stack([r.curve_eval for r in res]) * REPORT_SCALE
-            mean, std = c.mean(0), c.std(0)
-            (line,) = ax.plot(res[0].curve_epochs, mean, label=lab, lw=1.2)
-            ax.fill_between(res[0].curve_epochs, np.maximum(mean - std, 1e-12), mean + std,
-                            color=line.get_color(), alpha=0.15, lw=0)
+            (line,) = ax.plot(res[0].curve_epochs, c.mean(0), label=lab, lw=1.2)
+            # min–max over seeds: mean − std goes negative on a log axis
+            ax.fill_between(res[0].curve_epochs, c.min(0), c.max(0),
+                            color=line.get_color(), alpha=0.12, lw=0)
         ax.set_yscale("log")
         ax.set_title(f"N_train = {n}")
         ax.set_xlabel("epoch")
         ax.set_ylabel("L_eval ×1e5 [m²]")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(t.spec.title, fontsize=10)
+    fig.suptitle(f"{t.spec.title} (line: mean, band: min–max over seeds)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
