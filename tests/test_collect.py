@@ -196,6 +196,33 @@ def test_concealed_offset_pairs_with_simulate_and_shows(arm, tmp_path):
     assert abs(offset_of_m1(clean["theta"], clean["tension"], clean["tau_gravity"])) < 2
 
 
+def test_concealed_friction_has_definite_approaches_and_is_diagnosed(arm, tmp_path):
+    """Each muscle's last motion overshoots and comes back in a seeded direction (both signs),
+    beyond the friction band: the capstan friction is then what the diagnosis names."""
+    from pimbs_learn.diagnosis.run import diagnose
+
+    out, n, seed = tmp_path / "fr.parquet", 40, 3
+    # 5x, not 20x: at 20x the mock's equilibrium solver (tens of ms of wall time) lags the
+    # sped-up plant so much that its tension servo through the friction oscillates
+    res = _collect(out, "--samples", n, "--seed", seed, "--conceal", "tendon_friction:0.15",
+                   "--mock-speed", 5)
+    assert res.exit_code == 0, res.output
+    real = read_recording(out)
+    planned = np.array([CollectionPlan(arm, n, seed).target(i).approach for i in range(n)])
+    assert set(np.unique(real.approach)) == {-1, 1}
+    assert (real.approach > 0).sum(0).min() >= 5 and (real.approach < 0).sum(0).min() >= 5
+    assert (real.approach == planned).mean() > 0.95  # recorded = the planned last motion
+    sim = tmp_path / "sim.parquet"
+    assert CliRunner().invoke(main, ["simulate", "--samples", n, "--seed", seed,
+                                     "--out", str(sim)]).exit_code == 0
+    result, _ = diagnose(real, read_recording(sim))
+    names = [e["name"] for e in result["effects"]]
+    assert names and names[0] == "tendon_friction", (names, result["candidates"])
+    assert result["fit"]["after"] < 0.5 * result["fit"]["before"]
+    mu = [m["mu"] for m in result["effects"][0]["parameters"].values()]
+    assert np.allclose(mu, 0.15, atol=0.03), mu
+
+
 @pytest.mark.parametrize("sig, rc", [(signal.SIGINT, 130), (signal.SIGKILL, -9)])
 def test_interrupted_run_resumes_to_the_same_poses(arm, tmp_path, sig, rc):
     out = tmp_path / "i.parquet"

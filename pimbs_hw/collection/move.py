@@ -14,7 +14,8 @@ and commands are ramped in small increments at a limited rate:
   pose to the target at the pretension; the model's error at the start (measured minus
   modelled lengths) is blended out along the way, so the first command is where the arm is;
 * ``take_up_slack``: held muscles ramp from the pretension length to the QP length, the others
-  from their current tension to the QP tension.
+  from their current tension to the QP tension: first past them (the overshoot of
+  ``plan.Target``), then back, so every muscle's last motion has a known direction.
 """
 
 from __future__ import annotations
@@ -91,10 +92,16 @@ def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
                  np.ones(model.n_muscles, bool), cfg, path)
 
 
-def take_up_slack(now: Reading, target: Target, cfg: MoveConfig) -> Ramp:
-    """Mixed commands in ``target.hold_mode`` from the current readings to the holding."""
+def take_up_slack(now: Reading, target: Target, cfg: MoveConfig,
+                  end: np.ndarray | None = None) -> Ramp:
+    """Mixed commands in ``target.hold_mode`` from the current readings to the holding.
+
+    ``end`` (default ``target.hold_command``): the overshoot of the holding that the final
+    approach comes back from (``plan.Target.overshoot_command``).
+    """
     start = np.where(target.held, now.length, now.tension)
-    return _ramp(target.hold_mode, start, target.hold_command, target.held, cfg)
+    end = target.hold_command if end is None else end
+    return _ramp(target.hold_mode, start, end, target.held, cfg)
 
 
 def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:

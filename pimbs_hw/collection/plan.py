@@ -4,6 +4,19 @@ Everything random is drawn up front from the seed, with the same streams as
 ``calibration.simulate`` (poses from ``[seed, 0]``, ATL tension floors from ``[seed, 1]``), so
 a collection and ``pimbs simulate`` of one seed command the same poses in the same order
 (their rows pair up by ``sample``), and ``--resume`` continues the very same sequence.
+
+Approach directions (stream ``[seed, 2]``): capstan friction makes a loadcell read more or
+less than the joint-side tension depending on the direction of the wire's last motion, and
+only a motion beyond the friction band (``calibration.approach.BAND_M``) reverses it. The
+slack take-up alone ends almost every muscle shortening, often by less than the band, which
+leaves friction ill-defined and unidentifiable. So each sample ends with a deliberate
+excursion: the slack take-up goes ``APPROACH_TRAVEL`` past the holding command and the final
+ramp comes back, so every muscle's last motion is larger than a full friction reversal
+(2 bands) in a known direction. Held muscles get a seeded random direction (an overshoot in
+length, which moves the pose a little: the tension-controlled muscles give way, nobody
+fights); a tension-controlled muscle's direction is that of its geometric motion on the way
+back, topped up by a tension overshoot (bounded by its floor and ``OVERSHOOT_CEILING``·f_max)
+where the geometry alone moves it less than ``APPROACH_TRAVEL``.
 """
 
 from __future__ import annotations
@@ -12,10 +25,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration.approach import BAND_M
 from calibration.arm_model import ArmModel, sample_poses
 from calibration.simulate import ATL_F_MIN
 
 MAPS = ("al", "atl")
+APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
+OVERSHOOT_CEILING = 0.75  # no wire is overshot beyond this fraction of f_max
+MAX_POSE_EXCURSION = 0.2  # rad the held overshoot may move a joint
+GEOMETRIC_MIN = 3e-4      # m: below this the geometry does not pick a free muscle's direction
 
 
 @dataclass(frozen=True)
@@ -38,6 +56,8 @@ class Target:
     approach_length: np.ndarray  # (M,) m
     hold_mode: tuple[str, ...]   # (M,) "length" | "tension"
     hold_command: np.ndarray     # (M,) m for held muscles, N for the others
+    approach: np.ndarray         # (M,) ±1: direction of each muscle's final motion (+1 out)
+    overshoot_command: np.ndarray  # (M,) hold_mode command reached before the final ramp
 
 
 class CollectionPlan:
@@ -59,6 +79,9 @@ class CollectionPlan:
             self.f_min = np.maximum(drawn, floor)
         else:
             self.f_min = np.broadcast_to(floor, (n_samples, model.n_muscles)).copy()
+        self.floor = floor
+        self.directions = np.random.default_rng([seed, 2]).choice(
+            np.array([-1, 1], dtype=np.int8), (n_samples, model.n_muscles))
 
     def target(self, i: int) -> Target:
         """Commands for sample ``i``; raises ``InfeasiblePoseError`` if no tensions hold it."""
@@ -67,10 +90,50 @@ class CollectionPlan:
         held = held_muscles(model.muscle_jacobian(theta), tension)
         h = model.h_geom(theta)
         hold_command = np.where(held, h - model.stretch(tension), tension)
+        hold_mode = tuple("length" if x else "tension" for x in held)
+        approach, overshoot = self._overshoot(i, theta, tension, held, hold_mode, hold_command)
         return Target(index=i, theta=theta, f_min=self.f_min[i], tension=tension, held=held,
                       approach_length=h - model.stretch(self.pretension),
-                      hold_mode=tuple("length" if x else "tension" for x in held),
-                      hold_command=hold_command)
+                      hold_mode=hold_mode, hold_command=hold_command,
+                      approach=approach, overshoot_command=overshoot)
+
+    def _overshoot(self, i: int, theta: np.ndarray, tension: np.ndarray, held: np.ndarray,
+                   hold_mode: tuple[str, ...], hold_command: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Final directions and the command overshot before coming back to the holding."""
+        model, travel = self.model, APPROACH_TRAVEL
+        d = self.directions[i].astype(float)
+        over = np.where(held, hold_command - d * travel, hold_command)  # +1: short, then out
+        try:  # where the held overshoot puts the free muscles' motors (tensions unchanged)
+            moved = model.equilibrium(list(hold_mode), over, theta0=theta).length
+            back = model.length(theta, tension) - moved  # their motion on the way back
+        except Exception:  # noqa: BLE001 - no prediction: the tension overshoot does it all
+            back = np.zeros_like(tension)
+        d = np.where(held | (np.abs(back) < GEOMETRIC_MIN), d, np.sign(back))
+        extra = np.maximum(travel - d * back, 0.0)  # stretch still to add, in direction d
+        f_max = np.array([m.f_max for m in model.robot.muscles])
+        ceiling = np.maximum(OVERSHOOT_CEILING * f_max, tension)
+        for _ in range(4):  # the held muscles balance the overshoot: keep all wires safe
+            f_over = np.clip(model.tension_from_stretch(model.stretch(tension) + d * extra),
+                             self.floor, ceiling)
+            candidate = np.where(held, over, f_over)
+            if self._safe(hold_mode, candidate, theta, ceiling):
+                return d.astype(np.int8), candidate
+            extra = extra / 2
+        if not self._safe(hold_mode, over, theta, ceiling):
+            over = hold_command  # no safe overshoot: the tracker records what happened
+        return d.astype(np.int8), over
+
+    def _safe(self, hold_mode: tuple[str, ...], command: np.ndarray, theta: np.ndarray,
+              ceiling: np.ndarray) -> bool:
+        """The model's equilibrium under ``command``: near the pose, no wire slack or high."""
+        try:
+            eq = self.model.equilibrium(list(hold_mode), command, theta0=theta)
+        except Exception:  # noqa: BLE001 - no prediction, no overshoot
+            return False
+        return bool(np.abs(eq.theta - theta).max() <= MAX_POSE_EXCURSION
+                    and (eq.tension >= self.floor - 1e-6).all()
+                    and (eq.tension <= ceiling + 1e-6).all())
 
     def meta(self) -> dict:
         """Metadata keys that identify the sequence (checked when resuming)."""

@@ -5,9 +5,10 @@ to the geometric length of a low pretension (the arm moves there; ``move.py``) u
 motors are near those lengths; then the load-bearing muscles held in length and the others
 tension-controlled, ramped to the QP tensions (slack removed, pose kept), settle (the one
 full wait: the arm's creep from the move ends during the slack removal), read, and append
-one row. The row is on disk
-(atomically) before the next pose is commanded, so an interruption of any kind loses at most
-the sample in progress.
+one row. The slack removal overshoots the holding and comes back (``plan.Target.approach``),
+so each muscle's last motion, and with it the capstan friction, has a known direction. The
+row is on disk (atomically) before the next pose is commanded, so an interruption of any kind
+loses at most the sample in progress.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
+
+# m: how far short of the overshoot the final approach may start; its last motion is then still
+# APPROACH_TRAVEL - OVERSHOOT_TOL = 1.1 mm, beyond a full friction reversal (2 bands, 1 mm)
+OVERSHOOT_TOL = 3e-4
 
 
 @dataclass
@@ -123,8 +128,12 @@ class Collector:
             run_ramp(self.link, move(model, reading, theta, target, cfg))
             moved = hold_until_settled(self.link, "length", target.approach_length,
                                        self.settle.reached(), muscles)
-            run_ramp(self.link, take_up_slack(moved.reading, target, cfg))
             previous = target
+            run_ramp(self.link, take_up_slack(moved.reading, target, cfg,
+                                              target.overshoot_command))
+            over = hold_until_settled(self.link, target.hold_mode, target.overshoot_command,
+                                      self._overshot(target), muscles)
+            run_ramp(self.link, take_up_slack(over.reading, target, cfg))
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
             row = self._row(i, target.theta, held)
@@ -132,6 +141,13 @@ class Collector:
             reading, theta = held.reading, row["theta"]
             self._account(i, held, row)
         return self.summary
+
+    def _overshot(self, target: Target) -> SettleConfig:
+        """Reached the overshoot: every motor within ``OVERSHOOT_TOL`` of it (in length, or
+        in the tension error that stretches the wire by as much)."""
+        tension = np.where(target.held, target.tension, target.overshoot_command)
+        tension_tol = (1.0 + np.abs(tension)) * np.expm1(self.model.K * OVERSHOOT_TOL)
+        return self.settle.overshot(OVERSHOOT_TOL, np.maximum(tension_tol, 1.0))
 
     def _row(self, i: int, theta_command: np.ndarray, held: Settled) -> dict[str, Any]:
         r = held.reading

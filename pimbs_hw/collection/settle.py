@@ -54,6 +54,15 @@ class SettleConfig:
         return replace(self, length_tol=length_tol, tension_tol=np.inf, theta_tol=np.inf,
                        window=0.0, min_readings=2, fixed_wait=None)
 
+    def overshot(self, length_tol: float, tension_tol: np.ndarray) -> SettleConfig:
+        """At the overshoot before the final approach: lengths and tensions both reached.
+
+        The final ramp must start (nearly) from the overshoot itself, or the last motion into
+        the pose is shorter than planned and may not reverse the friction. ``tension_tol``
+        may be per muscle (N; e.g. the tension error that stretches a wire ``length_tol``).
+        """
+        return replace(self.reached(length_tol), tension_tol=tension_tol)
+
 
 @dataclass
 class Settled:
