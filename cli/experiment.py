@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -22,13 +23,16 @@ from cli.common import user_errors
               show_default=True)
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="cuda trains all runs of one table cell-row together (stacked weights)")
+@click.option("--n-train", "n_train", type=click.IntRange(min=1), multiple=True,
+              help="only these N_train columns (repeatable), e.g. --n-train 5")
 @click.option("--quick", is_flag=True,
               help="smoke run: 300 epochs, 2 seeds, 200-sample D_eval")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
 @user_errors
 def command(threads: int | None, epochs: int | None, seeds: int | None, tables: str,
-            out_dir: Path, lr: float, device: str, quick: bool) -> None:
+            out_dir: Path, lr: float, device: str, n_train: tuple[int, ...],
+            quick: bool) -> None:
     """Reproduce Tables I–III: mean ± std of L_eval^best (×1e5) over seeds, L_eval curves
     and the joint-angle / muscle-length figure, written to --out."""
     import torch
@@ -61,8 +65,13 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
         raise click.BadParameter(f"'{tables}' is not a list like 1,2,3",
                                  param_hint="--tables") from e
     specs = [s for s in paper_tables(quick) if int(s.key[-1]) in wanted]
+    if n_train:
+        specs = [replace(s, n_train=tuple(n for n in s.n_train if n in n_train))
+                 for s in specs]
+        specs = [s for s in specs if s.n_train]
     if not specs:
-        raise click.BadParameter("choose among 1, 2, 3", param_hint="--tables")
+        raise click.BadParameter("no table/N_train left: tables are 1, 2, 3 with N_train "
+                                 "{3, 5, 10}, {5, 10, 30}, {10, 30}", param_hint="--tables")
     console = Console()
     options = TrainOptions(epochs=epochs, lr=lr, device=device,
                            curve_every=max(epochs // 200, 1))
