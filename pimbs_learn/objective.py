@@ -12,6 +12,7 @@ M muscles, N joints.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -32,11 +33,12 @@ class Batch:
     const_weight: torch.Tensor  # (R,) 0 or 1
     pinn_weight: torch.Tensor  # (R,) α, or 0 without L_pinn
 
-    @property
+    # cached: on a GPU each evaluation would be a host sync, once per epoch
+    @cached_property
     def use_const(self) -> bool:
         return bool((self.const_weight != 0).any())
 
-    @property
+    @cached_property
     def use_pinn(self) -> bool:
         return bool((self.pinn_weight != 0).any())
 
