@@ -28,7 +28,8 @@ def plot_curves(t: TableResult, path: Path) -> Path:
     seeds (band), per method, one panel per N_train."""
     plt = _pyplot()
     ns = t.spec.n_train
-    fig, axes = plt.subplots(1, len(ns), figsize=(5 * len(ns), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(ns), figsize=(max(5 * len(ns), 7), 4.3),
+                             squeeze=False)
     labels = list(dict.fromkeys(m.label for m in t.spec.methods))
     for ax, n in zip(axes[0], ns, strict=True):
         for lab in labels:
@@ -46,7 +47,7 @@ def plot_curves(t: TableResult, path: Path) -> Path:
         ax.set_ylabel("L_eval ×1e5 [m²]")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"{t.spec.title} (line: mean, band: min–max over seeds)", fontsize=10)
+    fig.suptitle(f"{t.spec.title}\nline: mean, band: min–max over seeds", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
