@@ -21,8 +21,8 @@ from pimbs_learn.diagnosis.model import (
     Samples,
     Unit,
     apply_effects,
+    evaluate,
     fit_schema,
-    residuals,
     schema_jacobian,
 )
 
@@ -109,8 +109,7 @@ def length_weights(physics: Physics, data: Samples) -> tuple[np.ndarray, dict]:
     """
     data.len_weight = None
     fit = fit_effects(physics, data, [])
-    r_len, r_tau = residuals(physics, apply_effects(physics, data, [], np.zeros(0)), data,
-                             fit.weights)
+    r_len, r_tau = evaluate(physics, fit, data)
     jac = schema_jacobian(physics, data.theta, fit.weights)
     g2 = np.mean(np.sum(jac**2, axis=1), axis=0)  # (N,) mean Σ_j G_jk²
     sigma_f = float(np.clip(np.median(np.sqrt(np.mean(r_tau**2, 0) / np.maximum(g2, 1e-12))),

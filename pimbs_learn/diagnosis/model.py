@@ -202,11 +202,9 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
                      for j, f in enumerate(factors)], axis=1)
 
 
-def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
-                    key=None) -> np.ndarray:
-    """G = ∂h/∂θ of the fitted schema, as (B, M, N)."""
-    _, grads, _ = physics.basis_at(theta, key)
-    return (grads @ weights).transpose(0, 2, 1)
+def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """G = ∂h/∂θ of the fitted schema, as (B, M, N) (no normal equations needed)."""
+    return np.einsum("bpn,pm->bmn", physics.basis.gradients(theta), weights)
 
 
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,

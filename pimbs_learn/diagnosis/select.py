@@ -30,6 +30,7 @@ from pimbs_learn.diagnosis.model import (
     Physics,
     Samples,
     Unit,
+    _moves_pose,
     apply_effects,
     fit_schema,
     residuals,
@@ -82,9 +83,9 @@ class Candidate:
 def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.ndarray,
               sigma) -> np.ndarray:
     state = apply_effects(physics, data, units, params)
-    weights = fit_schema(physics, state, data, None if any(
-        u.effect == "joint_offset" for u in units) else "screen")
-    return _whiten(*residuals(physics, state, data, weights), *sigma)
+    key = None if _moves_pose(units) else "full"  # same poses as the full fit: share its cache
+    weights = fit_schema(physics, state, data, key)
+    return _whiten(*residuals(physics, state, data, weights, key), *sigma)
 
 
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
