@@ -23,8 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calibration.arm_model import ArmModel  # noqa: E402
-from calibration.recording import read_recording  # noqa: E402
+from pimbs_calibration.arm_model import ArmModel  # noqa: E402
+from pimbs_calibration.recording import read_recording  # noqa: E402
 from pimbs_hw.collection.move import MoveConfig  # noqa: E402
 from pimbs_hw.collection.plan import CollectionPlan  # noqa: E402
 from pimbs_hw.collection.resume import collection_meta, open_recording  # noqa: E402

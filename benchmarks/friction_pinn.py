@@ -27,10 +27,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from calibration.arm_model import ArmModel  # noqa: E402
-from calibration.effects import parse_effect  # noqa: E402
-from calibration.recording import write_recording  # noqa: E402
-from calibration.simulate import simulate  # noqa: E402
+from pimbs_calibration.arm_model import ArmModel  # noqa: E402
+from pimbs_calibration.effects import parse_effect  # noqa: E402
+from pimbs_calibration.recording import write_recording  # noqa: E402
+from pimbs_calibration.simulate import simulate  # noqa: E402
 from pimbs_learn.diagnosis.run import diagnose, write_corrected  # noqa: E402
 from pimbs_learn.losses import LossConfig  # noqa: E402
 from pimbs_learn.run import TrainOptions  # noqa: E402

@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 import quadprog
 
-from calibration.description import RobotDescription, load_robot
+from pimbs_calibration.description import RobotDescription, load_robot
 
 
 class InfeasiblePoseError(RuntimeError):
@@ -317,6 +317,6 @@ class ArmModel:
         Returns:
             Equilibrium minimising gravity + elastic potential within the URDF limits.
         """
-        from calibration.statics import solve_equilibrium  # solver lives in its own module
+        from pimbs_calibration.statics import solve_equilibrium  # solver lives in its own module
 
         return solve_equilibrium(self, mode, command, theta0)

@@ -120,7 +120,8 @@ def load_robot(name_or_path: str | Path) -> RobotDescription:
     """
     text = str(name_or_path)
     if text in _BUILTIN and not Path(text).exists():
-        resource = importlib.resources.files("calibration") / "robots" / f"{text}{MUSCLE_SUFFIX}"
+        package = importlib.resources.files("pimbs_calibration")
+        resource = package / "robots" / f"{text}{MUSCLE_SUFFIX}"
         with importlib.resources.as_file(resource) as path:
             return _load_file(Path(path))
     path = Path(text)

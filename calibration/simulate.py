@@ -8,7 +8,7 @@ elastic stretch ``f = exp(KΔn) − 1``.
 Like a real collection, the recording also carries times, approach directions (the sign
 of each muscle's length change on the way from the previous pose), motor temperatures that
 rise with load (first-order thermal model) and sensor noise. With effects from
-:mod:`calibration.effects` the data obey the *true* arm while ``tau_gravity`` is still
+:mod:`pimbs_calibration.effects` the data obey the *true* arm while ``tau_gravity`` is still
 computed from the model, exactly as on hardware. Poses, f_min draws and noise come from
 separate seeded streams, so a concealed and a clean recording of one seed pair by
 ``sample``.
@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.arm_model import ArmModel, sample_poses
-from calibration.effects import Effect, World
-from calibration.recording import make_meta
+from pimbs_calibration.arm_model import ArmModel, sample_poses
+from pimbs_calibration.effects import Effect, World
+from pimbs_calibration.recording import make_meta
 
 ATL_F_MIN = (10.0, 300.0)  # N, the paper's range for the ATL-Map
 START = np.datetime64("2026-01-01T09:00:00", "us")  # fixed, so files of one seed are equal

@@ -1,1 +1,1 @@
-"""The `pimbs` command line: one module per command, registered lazily by `cli.main`."""
+"""The `pimbs` command line: one module per command, registered lazily by `pimbs_cli.main`."""

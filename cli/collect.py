@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import robot_option, user_errors
+from pimbs_cli.common import robot_option, user_errors
 
 
 def _default_out(robot: str) -> Path:
@@ -90,7 +90,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
-    from calibration.arm_model import ArmModel
+    from pimbs_calibration.arm_model import ArmModel
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.plan import CollectionPlan
@@ -125,7 +125,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
-    from calibration.recording import RecordingWriteError
+    from pimbs_calibration.recording import RecordingWriteError
     from pimbs_hw.collection.progress import LiveReporter, summary_lines
     from pimbs_hw.collection.routine import Collector
     from pimbs_hw.collection.session import open_link, stop_advice

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import user_errors
+from pimbs_cli.common import user_errors
 
 
 @click.command("diagnose")

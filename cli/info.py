@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from cli.common import user_errors
+from pimbs_cli.common import user_errors
 
 
 def _range(values: np.ndarray) -> str:
@@ -19,7 +19,7 @@ def _range(values: np.ndarray) -> str:
 
 def summary(path: Path) -> str:
     """Human-readable summary of a recording (raises RecordingError if invalid)."""
-    from calibration.recording import read_recording
+    from pimbs_calibration.recording import read_recording
 
     rec = read_recording(path)
     t = rec.time

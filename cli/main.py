@@ -12,13 +12,13 @@ import click
 
 # command name -> module under `cli` that exports a click command named `command`
 COMMANDS: dict[str, str] = {
-    "simulate": "cli.simulate",
-    "info": "cli.info",
-    "collect": "cli.collect",
-    "mockbus": "cli.mockbus",
-    "train": "cli.train",
-    "experiment": "cli.experiment",
-    "diagnose": "cli.diagnose",
+    "simulate": "pimbs_cli.simulate",
+    "info": "pimbs_cli.info",
+    "collect": "pimbs_cli.collect",
+    "mockbus": "pimbs_cli.mockbus",
+    "train": "pimbs_cli.train",
+    "experiment": "pimbs_cli.experiment",
+    "diagnose": "pimbs_cli.diagnose",
 }
 
 

@@ -14,7 +14,7 @@ import threading
 
 import click
 
-from cli.common import robot_option, user_errors
+from pimbs_cli.common import robot_option, user_errors
 
 DEFAULT_CHANNEL = "udp_multicast:239.74.163.2"
 
@@ -38,8 +38,8 @@ DEFAULT_CHANNEL = "udp_multicast:239.74.163.2"
 def command(robot: str, channel: str, serial: bool, faults: tuple[str, ...],
             conceal: tuple[str, ...], seed: int, speed: float, duration: float | None) -> None:
     """Run simulated muscle boards of ROBOT on a CAN port or a pty until Ctrl-C."""
-    from calibration.description import load_robot
-    from calibration.effects import parse_effect
+    from pimbs_calibration.description import load_robot
+    from pimbs_calibration.effects import parse_effect
     from pimbs_hw.mock import MockArm, parse_faults
 
     logging.basicConfig(level=logging.INFO, format="mockbus: %(message)s")

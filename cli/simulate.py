@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import robot_option, user_errors
+from pimbs_cli.common import robot_option, user_errors
 
 
 @click.command("simulate")
@@ -27,10 +27,10 @@ from cli.common import robot_option, user_errors
 def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
             conceal: tuple[str, ...], noise: float) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
-    from calibration.arm_model import ArmModel
-    from calibration.effects import parse_effect
-    from calibration.recording import write_recording
-    from calibration.simulate import simulate
+    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.effects import parse_effect
+    from pimbs_calibration.recording import write_recording
+    from pimbs_calibration.simulate import simulate
 
     arm = ArmModel.load(robot)
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)

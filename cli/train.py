@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import user_errors
+from pimbs_cli.common import user_errors
 
 LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
 

@@ -43,7 +43,7 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
              connect_timeout_s: float = 1.0) -> Iterator[tuple[ArmDriver, MockArm | None]]:
     """Driver for the arm on ``port``; starts the simulated arm for simulated ports."""
     if isinstance(robot, str | Path):
-        from calibration.description import load_robot
+        from pimbs_calibration.description import load_robot
 
         robot = load_robot(robot)
     mock = None

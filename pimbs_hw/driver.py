@@ -114,7 +114,7 @@ class _Rx:
 
 
 class ArmDriver:
-    """See the module docstring. ``robot`` is a ``calibration.description.RobotDescription``."""
+    """See the module docstring. ``robot``: a ``pimbs_calibration.description.RobotDescription``."""
 
     def __init__(self, transport: Transport, robot, limits: SafetyLimits | None = None, *,
                  connect_timeout_s: float = 1.0) -> None:

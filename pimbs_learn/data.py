@@ -70,7 +70,7 @@ def file_sha256(path: str | Path) -> str:
 
 def load_samples(path: str | Path) -> Samples:
     """Read and validate a recording (format v1) into Samples; LearnError if unusable."""
-    from calibration.recording import RecordingError, read_recording
+    from pimbs_calibration.recording import RecordingError, read_recording
 
     p = Path(path)
     if not p.is_file():
@@ -102,7 +102,7 @@ def fill_gravity(samples: Samples, robot: str | None) -> Samples:
             f"{samples.path or 'recording'}: tau_gravity is null in {int(missing.sum())} of "
             f"{samples.n_samples} rows and the PINN loss needs it; pass --robot NAME|PATH so "
             "it can be computed from the joint model, or train without 'pinn'")
-    from calibration.arm_model import ArmModel
+    from pimbs_calibration.arm_model import ArmModel
 
     try:
         arm = ArmModel.load(robot)

@@ -8,7 +8,7 @@ Table III: ATL-Map, left-arm-5dof, 496 samples (standing in for the real arm: se
   on), N_train ∈ {10, 30} drawn per seed, the rest is D_eval; Basic, Basic+Const,
   Basic+PINN (α = 1e-5) and Basic+Const+PINN with α ∈ {1e-5, 1e-6, 1e-7, 1e-8}.
 
-Data are made with :func:`calibration.simulate.simulate` exactly as ``pimbs simulate`` does
+Data are made with :func:`pimbs_calibration.simulate.simulate` exactly as ``pimbs simulate`` does
 (the equivalent command lines are printed and saved), and read back through the recording
 format, so the experiment exercises the same path as a user's `pimbs train`.
 """
@@ -79,9 +79,9 @@ def paper_tables(quick: bool = False) -> list[TableSpec]:
 def simulate_recording(path: Path, robot: str, samples: int, atl: bool, seed: int,
                        noise: float) -> str:
     """Write a recording like `pimbs simulate` would; returns that command line."""
-    from calibration.arm_model import ArmModel
-    from calibration.recording import write_recording
-    from calibration.simulate import simulate
+    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.recording import write_recording
+    from pimbs_calibration.simulate import simulate
 
     map_kind = "atl" if atl else "al"
     cmd = (f"pimbs simulate --robot {robot} --samples {samples} --map {map_kind} "

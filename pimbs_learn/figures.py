@@ -62,7 +62,7 @@ def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
     For an AL-Map the model's length at θ is h_geom(θ) − Δn(f(θ)) with f from the QP with
     f_min = 0, i.e. exactly what the simulated data hold.
     """
-    from calibration.arm_model import ArmModel
+    from pimbs_calibration.arm_model import ArmModel
     from pimbs_learn.io import schema_from_result
 
     plt = _pyplot()

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from calibration.arm_model import ArmModel, Equilibrium, InfeasiblePoseError, sample_poses
-from calibration.description import builtin_robots
+from pimbs_calibration.arm_model import ArmModel, Equilibrium, InfeasiblePoseError, sample_poses
+from pimbs_calibration.description import builtin_robots
 
 ROBOTS = Path(__file__).resolve().parents[1] / "calibration" / "robots"
 

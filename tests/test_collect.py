@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import calibration.recording as recording
-from calibration.arm_model import ArmModel
-from calibration.effects import parse_effect
-from calibration.recording import RecordingError, read_recording
-from calibration.simulate import simulate
-from cli.main import main
+import pimbs_calibration.recording as recording
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.effects import parse_effect
+from pimbs_calibration.recording import RecordingError, read_recording
+from pimbs_calibration.simulate import simulate
+from pimbs_cli.main import main
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import Reading
 from pimbs_hw.collection.plan import CollectionPlan
@@ -227,7 +227,7 @@ def test_concealed_friction_has_definite_approaches_and_is_diagnosed(arm, tmp_pa
 def test_interrupted_run_resumes_to_the_same_poses(arm, tmp_path, sig, rc):
     out = tmp_path / "i.parquet"
     n, seed = 10, 7
-    args = [sys.executable, "-m", "cli.main", "collect", "--port", "virtual", "--samples",
+    args = [sys.executable, "-m", "pimbs_cli.main", "collect", "--port", "virtual", "--samples",
             str(n), "--seed", str(seed), "--out", str(out), *FAST]
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             cwd=Path(__file__).parents[1])
@@ -293,7 +293,7 @@ def test_robot_file_that_does_not_match_the_boards(tmp_path, monkeypatch):
     """Boards of two-link-4-muscle on the bus, a description with a fifth muscle (board 5)."""
     import yaml
 
-    from calibration.description import load_robot
+    from pimbs_calibration.description import load_robot
     from pimbs_hw.mock import MockArm
 
     robots = Path(load_robot("two-link-4-muscle").muscle_path).parent

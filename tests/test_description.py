@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calibration.description import (
+from pimbs_calibration.description import (
     DescriptionError,
     MuscleSpec,
     RobotDescription,

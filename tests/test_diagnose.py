@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibration.arm_model import ArmModel
-from calibration.effects import parse_effect
-from calibration.recording import read_recording, write_recording
-from calibration.simulate import simulate
-from cli.main import main
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.effects import parse_effect
+from pimbs_calibration.recording import read_recording, write_recording
+from pimbs_calibration.simulate import simulate
+from pimbs_cli.main import main
 from pimbs_learn.diagnosis.inputs import DiagnosisInputError
 from pimbs_learn.diagnosis.run import diagnose
 

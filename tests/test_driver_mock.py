@@ -8,9 +8,9 @@ import uuid
 import numpy as np
 import pytest
 
-from calibration.arm_model import ArmModel
-from calibration.description import load_robot
-from calibration.effects import parse_effect
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.description import load_robot
+from pimbs_calibration.effects import parse_effect
 from pimbs_hw import ArmDriver, PortError, SafetyLimits, open_arm
 from pimbs_hw.mock import MockArm
 from pimbs_hw.safety import TensionLimit, WatchdogExpired
@@ -188,7 +188,7 @@ def test_no_boards_on_the_bus_is_a_clear_error(robot):
 def test_mockbus_command_serves_a_pty():
     from click.testing import CliRunner
 
-    from cli.mockbus import command
+    from pimbs_cli.mockbus import command
 
     result = CliRunner().invoke(command, ["--serial", "--duration", "0.3", "--fault",
                                           "overheat:m1@0.1s"])

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from calibration.recording import RecordingError, read_recording
+from pimbs_calibration.recording import RecordingError, read_recording
 from pimbs_learn.diagnosis.run import diagnose
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -37,7 +37,7 @@ def test_fixture_offset_is_diagnosed():
 
 def _pimbs() -> list[str]:
     exe = shutil.which("pimbs", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "cli.main"]
+    return [exe] if exe else [sys.executable, "-m", "pimbs_cli.main"]
 
 
 def test_installed_command_finds_robot_descriptions_from_any_directory(tmp_path):
@@ -56,3 +56,15 @@ def test_installed_command_finds_robot_descriptions_from_any_directory(tmp_path)
                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and "Traceback" not in bad.stderr
     assert "column 'tension'" in bad.stderr
+
+
+def test_install_adds_no_generic_top_level_packages(tmp_path):
+    """`cli` and `calibration` are our source folders, installed as pimbs_cli/pimbs_calibration."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    for name in ("cli", "calibration"):
+        r = subprocess.run([sys.executable, "-c", f"import {name}"], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and "ModuleNotFoundError" in r.stderr, name
+    r = subprocess.run([sys.executable, "-c", "import pimbs_cli, pimbs_calibration"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr

@@ -196,7 +196,7 @@ def test_bad_inputs_are_refused() -> None:
 
 
 def _write(path, samples: Samples, tau_null: bool = False, zero_tension: bool = False) -> None:
-    from calibration.recording import make_meta, write_recording
+    from pimbs_calibration.recording import make_meta, write_recording
 
     n = samples.n_samples
     data = {"sample": np.arange(n),
@@ -212,7 +212,7 @@ def _write(path, samples: Samples, tau_null: bool = False, zero_tension: bool = 
 
 
 def test_cli_train_and_its_errors(tmp_path) -> None:
-    from cli.train import command
+    from pimbs_cli.train import command
 
     rec = tmp_path / "rec.parquet"
     try:
@@ -260,10 +260,10 @@ def test_scaling_maps_zero_to_zero() -> None:
 
 
 def test_missing_tau_is_computed_from_the_robot(tmp_path) -> None:
-    from calibration.arm_model import ArmModel
-    from calibration.recording import write_recording
-    from calibration.simulate import simulate
-    from cli.train import command
+    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.recording import write_recording
+    from pimbs_calibration.simulate import simulate
+    from pimbs_cli.train import command
 
     data, meta = simulate(ArmModel.load("two-link-4-muscle"), 12, "atl", seed=0, noise=0.0)
     tau = data["tau_gravity"].copy()

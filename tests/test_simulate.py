@@ -10,11 +10,11 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from calibration.arm_model import ArmModel
-from calibration.effects import EffectSpecError, parse_effect
-from calibration.recording import read_recording
-from calibration.simulate import simulate
-from cli.main import main
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.effects import EffectSpecError, parse_effect
+from pimbs_calibration.recording import read_recording
+from pimbs_calibration.simulate import simulate
+from pimbs_cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -1,13 +1,13 @@
 """What to command for each sample: the seeded pose sequence and the tensions that hold it.
 
 Everything random is drawn up front from the seed, with the same streams as
-``calibration.simulate`` (poses from ``[seed, 0]``, ATL tension floors from ``[seed, 1]``), so
+``pimbs_calibration.simulate`` (poses from ``[seed, 0]``, ATL tension floors from ``[seed, 1]``), so
 a collection and ``pimbs simulate`` of one seed command the same poses in the same order
 (their rows pair up by ``sample``), and ``--resume`` continues the very same sequence.
 
 Approach directions (stream ``[seed, 2]``): capstan friction makes a loadcell read more or
 less than the joint-side tension depending on the direction of the wire's last motion, and
-only a motion beyond the friction band (``calibration.approach.BAND_M``) reverses it. The
+only a motion beyond the friction band (``pimbs_calibration.approach.BAND_M``) reverses it. The
 slack take-up alone ends almost every muscle shortening, often by less than the band, which
 leaves friction ill-defined and unidentifiable. So each sample ends with a deliberate
 excursion: the slack take-up goes ``APPROACH_TRAVEL`` past the holding command and the final
@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.approach import BAND_M
-from calibration.arm_model import ArmModel, sample_poses
-from calibration.simulate import ATL_F_MIN
+from pimbs_calibration.approach import BAND_M
+from pimbs_calibration.arm_model import ArmModel, sample_poses
+from pimbs_calibration.simulate import ATL_F_MIN
 
 MAPS = ("al", "atl")
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal

@@ -22,8 +22,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from calibration.arm_model import ArmModel, InfeasiblePoseError
-from calibration.recording import RecordingWriter
+from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
+from pimbs_calibration.recording import RecordingWriter
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack

@@ -10,8 +10,8 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator, Sequence
 
-from calibration.description import RobotDescription
-from calibration.effects import parse_effect
+from pimbs_calibration.description import RobotDescription
+from pimbs_calibration.effects import parse_effect
 from pimbs_hw import is_simulated, open_arm
 from pimbs_hw.collection.link import DriverLink
 from pimbs_hw.errors import HardwareError

@@ -75,8 +75,8 @@ class MockArm:
     def __init__(self, robot, link: str = "virtual", *, model=None, effect=None,
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True) -> None:
-        from calibration.arm_model import ArmModel
-        from calibration.description import load_robot
+        from pimbs_calibration.arm_model import ArmModel
+        from pimbs_calibration.description import load_robot
 
         self.robot = load_robot(robot) if isinstance(robot, str | Path) else robot
         self.muscles = tuple(m.name for m in self.robot.muscles)

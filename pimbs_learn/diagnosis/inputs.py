@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calibration.recording import Recording
+from pimbs_calibration.recording import Recording
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 from pimbs_learn.diagnosis.fit import choose_degree, fit_effects
 from pimbs_learn.diagnosis.model import (

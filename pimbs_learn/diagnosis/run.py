@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from calibration.recording import Recording, read_recording, write_recording
+from pimbs_calibration.recording import Recording, read_recording, write_recording
 from pimbs_learn.diagnosis.fit import fit_effects
 from pimbs_learn.diagnosis.inputs import DiagnosisInputError, build_physics, pair
 from pimbs_learn.diagnosis.locate import locate
@@ -35,7 +35,7 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
                                   "--robot NAME|PATH (the robot description)")
     arm, kappa = None, None
     if robot is not None:
-        from calibration.arm_model import ArmModel
+        from pimbs_calibration.arm_model import ArmModel
 
         arm = ArmModel.load(robot)
         if list(arm.joints) != real_rec.joints or list(arm.muscles) != real_rec.muscles:
