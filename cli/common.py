@@ -8,7 +8,9 @@ traceback (they are ours to fix).
 from __future__ import annotations
 
 import functools
+import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import click
@@ -39,3 +41,66 @@ def robot_option(default: str | None = "two-link-4-muscle") -> Callable[[F], F]:
     return click.option("--robot", default=default, show_default=default is not None,
                         help="built-in robot name (two-link-4-muscle, left-arm-5dof) or path "
                              "to a .muscles.yaml robot description")
+
+
+def force_option() -> Callable[[F], F]:
+    """`--force`: the only way any command replaces an existing recording, model or file."""
+    return click.option("--force", is_flag=True,
+                        help="replace the output if it already exists")
+
+
+def check_output(path: Path, *, force: bool, what: str = "file",
+                 option: str = "--out") -> Path:
+    """Refuse, before any work is done, an output that would overwrite or cannot be written.
+
+    Nothing is overwritten without ``--force`` and no directory is created on the user's
+    behalf: a typo in a path should fail in one line, not silently write elsewhere.
+    """
+    path = Path(path)
+    if path.exists() and not force:
+        raise click.ClickException(
+            f"{option} {path}: a {what} already exists there; pass --force to replace it "
+            "or choose another path")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise click.ClickException(
+            f"{option} {path}: directory {parent} does not exist; create it first")
+    return path
+
+
+class LogProgress:
+    """Plain progress lines for output that is not a terminal (log files, pipes, CI).
+
+    A live display draws nothing useful into a log; this prints one complete, flushed line
+    at most every ``every_s`` seconds (and at the end) with the count, rate and ETA, so the
+    log of a run killed with ``kill -9`` still shows how far it got.
+    """
+
+    def __init__(self, label: str, total: int | None, unit: str, *,
+                 every_s: float = 5.0, echo: Callable[[str], None] | None = None) -> None:
+        self.label, self.total, self.unit, self.every_s = label, total, unit, every_s
+        self._echo = echo or (lambda line: click.echo(line, err=True))
+        self._start = time.monotonic()
+        self._last = -float("inf")
+
+    def update(self, done: int, extra: str = "", *, final: bool = False) -> None:
+        now = time.monotonic()
+        if not final and now - self._last < self.every_s:
+            return
+        self._last = now
+        elapsed = now - self._start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        parts = [f"{self.label}: {done}" + (f"/{self.total}" if self.total else "")
+                 + f" {self.unit}", f"{rate:.3g} {self.unit}/s", f"elapsed {_clock(elapsed)}"]
+        if self.total and rate > 0 and done < self.total:
+            parts.append(f"ETA {_clock((self.total - done) / rate)}")
+        if extra:
+            parts.append(extra)
+        self._echo(", ".join(parts))
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    if s >= 3600:
+        return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+    return f"{s // 60}:{s % 60:02d}"
