@@ -1,6 +1,6 @@
 """The PIMBS recording format, version 1: one place that writes, reads and validates it.
 
-The format (``shared/recording-format.md``) is a contract with other tools, so this module
+The format (``docs/recording-format.md``) is a contract with other tools, so this module
 is strict about meaning and lenient only about lossless representation: a file whose list
 columns are plain ``list<double>`` of the right length, or ``float32`` values, is read;
 a missing column, a wrong list length, a NaN, a null where none is allowed or a
