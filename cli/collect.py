@@ -78,13 +78,19 @@ def _stop_on_signals() -> Iterator[None]:
               show_default=True, help="s; an unsettled sample is recorded, flagged and warned")
 @click.option("--fixed-wait", type=click.FloatRange(min=0), default=None,
               help="s: wait this long before each reading instead of detecting settling")
+@click.option("--schema", "schema_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=None,
+              help="command the poses with this learned body schema (a `pimbs train --out` "
+                   "directory) instead of the geometric model; samples where it would "
+                   "extrapolate or be unsafe fall back to the model, with a warning")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
 @user_errors
 def command(port: str, samples: int, robot: str, out: Path | None, seed: int, map_kind: str,
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
-            settle_timeout: float, fixed_wait: float | None, mock_speed: float) -> None:
+            settle_timeout: float, fixed_wait: float | None, schema_dir: Path | None,
+            mock_speed: float) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
@@ -93,7 +99,6 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
-    from pimbs_hw.collection.plan import CollectionPlan
     from pimbs_hw.collection.resume import collection_meta, open_recording
     from pimbs_hw.collection.settle import SettleConfig
     from pimbs_hw.mock.faults import parse_faults
@@ -107,18 +112,35 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     model = ArmModel.load(robot)
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
-    plan = CollectionPlan(model, samples, seed, map_kind)
+    plan, schema_meta = _plan(model, samples, seed, map_kind, schema_dir)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
-    meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
-                           settle=settle.meta(), move=moves.meta())
+    meta = collection_meta(model, {**plan.meta(), **schema_meta}, port=port,
+                           simulated=simulated, settle=settle.meta(), move=moves.meta())
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
         click.echo(f"{out} already holds all {samples} samples; nothing to do")
         return
     with _stop_on_signals():
         _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
+
+
+def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):
+    """The geometric plan, or the learned schema's (and the metadata that says which)."""
+    from pimbs_hw.collection.plan import CollectionPlan
+
+    if schema_dir is None:
+        return CollectionPlan(model, samples, seed, map_kind), {}
+    from pimbs_hw.collection.schema_plan import SchemaPlan
+    from pimbs_learn import load_body_schema
+    from pimbs_learn.data import file_sha256
+    from pimbs_learn.io import WEIGHTS
+
+    schema = load_body_schema(schema_dir)
+    plan = SchemaPlan(model, schema, samples, seed, map_kind)
+    return plan, {"schema": str(schema_dir),
+                  "schema_weights_sha256": file_sha256(schema_dir / WEIGHTS)}
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed) -> None:

@@ -17,6 +17,7 @@ import torch
 from safetensors.numpy import load_file, save_file
 
 from pimbs_learn.data import LearnError
+from pimbs_learn.domain import Domain
 from pimbs_learn.model import (
     PARAM_NAMES,
     Params,
@@ -46,6 +47,8 @@ def model_meta(result: TrainResult) -> dict[str, Any]:
                                     int(w["w2"].shape[0]), int(w["w3"].shape[0])],
                          "activation": "tanh after layers 1 and 2"},
         "scaling": result.scaling.to_json(),
+        "domain": Domain.from_samples(run.train.theta,
+                                      run.train.tension if run.atl else None).to_json(),
         "loss": run.loss.name, "alpha": run.loss.alpha,
         "data": {"path": run.train.path, "sha256": run.train.sha256},
         "eval_data": {"path": run.eval.path, "sha256": run.eval.sha256},
@@ -85,6 +88,7 @@ class BodySchema:
         self.muscles: list[str] = list(meta["muscles"])
         self.atl: bool = meta["map"] == "atl"
         self.scaling = Scaling.from_json(meta["scaling"])
+        self.domain = Domain.from_meta(meta)  # training ranges: where it is not extrapolating
         self._p = params
         self._inv = torch.tensor(self.scaling.input_inverse(), dtype=torch.float64)
         self._ls = torch.tensor(self.scaling.length, dtype=torch.float64)

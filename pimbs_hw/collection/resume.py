@@ -15,8 +15,9 @@ from pimbs_calibration.arm_model import ArmModel
 from pimbs_calibration.recording import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
-RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map")
-_OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map"}
+RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map", "schema")
+_OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map",
+           "schema": "--schema"}
 
 
 def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,

@@ -122,6 +122,8 @@ class Collector:
                 self._warn(f"sample {i} skipped: {exc}")
                 self.summary.next_sample = i + 1
                 continue
+            if target.note:
+                self._warn(f"sample {i}: {target.note}")
             model, muscles, cfg = self.model, self.model.muscles, self.move
             if previous is not None:
                 reading = run_ramp(self.link, release(model, reading, previous, cfg))
@@ -137,6 +139,8 @@ class Collector:
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
             row = self._row(i, target.theta, held)
+            if target.commanded_by:
+                row["commanded_by"] = target.commanded_by
             self._append_holding(row, target)
             reading, theta = held.reading, row["theta"]
             self._account(i, held, row)

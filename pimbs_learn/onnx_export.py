@@ -1,0 +1,85 @@
+"""A trained body schema as one ONNX file, for a controller that does not run Python.
+
+The graph takes ``theta`` [B, N] rad and ``tension`` [B, M] N (float32, B free) and returns
+``length`` [B, M] m and ``G`` [B, M, N] m/rad, the exact derivative of ``length`` with
+respect to ``theta`` (closed form in the graph, not a finite difference). Scaling is inside,
+so a caller passes physical units; the joint and muscle names (the order of the columns),
+the robot, the map and the training ranges are in the file's metadata, so a C++ controller
+can check that it feeds the columns its schema expects.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pimbs_learn.export_graph import SchemaGraph
+from pimbs_learn.io import WEIGHTS, load_body_schema
+
+INPUTS, OUTPUTS = ("theta", "tension"), ("length", "G")
+OPSET = 17
+
+
+def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
+    """Write ``out`` (atomically) and return the metadata stored in it."""
+    import onnx
+
+    schema = load_body_schema(model_dir)
+    graph = SchemaGraph(schema).eval()
+    d = schema.domain
+    theta = torch.as_tensor(np.tile(d.theta.mean(axis=1), (2, 1)), dtype=torch.float32)
+    f_mid = d.tension.mean(axis=1) if d.tension is not None else np.ones(schema.n_muscles)
+    tension = torch.as_tensor(np.tile(f_mid, (2, 1)), dtype=torch.float32)
+    out = Path(out)
+    tmp = out.with_name(f".{out.name}.tmp")
+    batch = {0: "batch"}
+    with warnings.catch_warnings():
+        # torch ≥ 2.9 deprecates the TorchScript exporter in favour of torch.export + onnxscript;
+        # for this graph of matmuls and tanh it is exact, small and needs no extra dependency.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(graph, (theta, tension), str(tmp), dynamo=False,
+                          input_names=list(INPUTS), output_names=list(OUTPUTS),
+                          dynamic_axes={k: batch for k in INPUTS + OUTPUTS},
+                          opset_version=OPSET, do_constant_folding=True)
+    model = onnx.load(str(tmp))
+    meta = metadata(schema, Path(model_dir))
+    for key, value in meta.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    model.doc_string = ("PIMBS body schema: length [B,M] m and G = d length / d theta "
+                        "[B,M,N] m/rad from theta [B,N] rad and tension [B,M] N")
+    onnx.checker.check_model(model)
+    onnx.save(model, str(tmp))
+    os.replace(tmp, out)
+    return meta
+
+
+def metadata(schema: Any, model_dir: Path) -> dict[str, str]:
+    """String metadata (ONNX allows only strings): JSON for the lists."""
+    digest = hashlib.sha256((model_dir / WEIGHTS).read_bytes()).hexdigest()
+    return {
+        "pimbs.format": "pimbs-body-schema-onnx/1",
+        "pimbs.joints": json.dumps(schema.joints),
+        "pimbs.muscles": json.dumps(schema.muscles),
+        "pimbs.robot": str(schema.meta.get("robot")),
+        "pimbs.map": schema.meta["map"],
+        "pimbs.units": json.dumps({"theta": "rad", "tension": "N", "length": "m",
+                                   "G": "m/rad"}),
+        "pimbs.domain": json.dumps(schema.domain.to_json()),
+        "pimbs.weights_sha256": digest,
+    }
+
+
+def read_metadata(path: str | Path) -> dict[str, str]:
+    """The ``pimbs.*`` metadata of an exported file (via onnxruntime, as a user would)."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return dict(sess.get_modelmeta().custom_metadata_map)
