@@ -86,6 +86,12 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: fl
     console.print(f"best epoch {result.best_epoch}/{epochs}: train L_basic "
                   f"{metrics['train_loss']:.4f}, eval L_eval {metrics['eval_loss']:.4f} "
                   f"(×1e5 m²) in {result.seconds:.1f} s")
+    angles = _joint_angles(result, robot)
+    metrics.update(eval_joint_angle_rms_deg=angles.rms_error_deg.tolist(),
+                   eval_joint_angle_rms_deg_geometric=None
+                   if angles.geometric_rms_error_deg is None
+                   else angles.geometric_rms_error_deg.tolist())
+    console.print(f"joint angles estimated from eval lengths and tensions, rms: {angles.line()}")
     if out is not None:
         save_model(result, out)
         console.print(f"model written to {out}/")
@@ -95,4 +101,15 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: fl
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(metrics, indent=2) + "\n")
     click.echo(json.dumps({k: metrics[k] for k in ("eval_loss", "train_loss", "best_epoch",
-                                                   "epochs", "seconds")}))
+                                                   "epochs", "seconds",
+                                                   "eval_joint_angle_rms_deg")}))
+
+
+def _joint_angles(result, robot: str | None):
+    """Joint-angle error on the evaluation samples (degrees: what a roboticist reads)."""
+    from pimbs_learn.estimate import joint_angle_report
+    from pimbs_learn.io import schema_from_result
+
+    ev = result.run.eval
+    return joint_angle_report(schema_from_result(result), ev.theta, ev.tension, ev.length,
+                              robot=robot or ev.robot)
