@@ -49,7 +49,8 @@ def open_recording(path: Path, meta: Mapping[str, Any], resume: bool
             old, new = existing.get(key), meta.get(key)
             if old == new:
                 continue
-            fix = (f"rerun with {_OPTION[key]} {old}" if key in _OPTION
+            fix = (f"rerun with {_OPTION[key]} {old}" if key in _OPTION and old is not None
+                   else f"rerun without {_OPTION[key]}" if key in _OPTION
                    else "the robot description changed since; use the one it was made with")
             raise ResumeError(f"cannot resume {path}: it was collected with {key}={old!r}, "
                               f"this run has {key}={new!r}; {fix} to continue it, or choose "
