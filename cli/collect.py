@@ -113,6 +113,11 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
     plan, schema_meta = _plan(model, samples, seed, map_kind, schema_dir)
+    if schema_dir is not None and any(c.startswith("routing") and "seed=" not in c
+                                      for c in conceal):
+        click.echo(f"note: the concealed routing is drawn from --seed {seed}, so it is the "
+                   "arm the schema was learned on only if that collection used the same "
+                   "seed; name the arm in both: --conceal routing:MAG,seed=S", err=True)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
