@@ -52,26 +52,37 @@ class Domain:
                 "tension": None if self.tension is None else self.tension.tolist(),
                 "margin": MARGIN}
 
-    def _widened(self, r: np.ndarray) -> np.ndarray:
-        pad = MARGIN * (r[:, 1] - r[:, 0])
+    def _widened(self, r: np.ndarray, margin: float) -> np.ndarray:
+        pad = margin * (r[:, 1] - r[:, 0])
         return np.stack([r[:, 0] - pad, r[:, 1] + pad], axis=1)
 
     def outside(self, theta: np.ndarray, tension: np.ndarray | None = None,
-                joints: list[str] | None = None, muscles: list[str] | None = None
-                ) -> list[str]:
+                joints: list[str] | None = None, muscles: list[str] | None = None,
+                margin: float = MARGIN) -> list[str]:
         """What of one pose (N,) and its tensions (M,) lies outside the training ranges.
 
         Empty when the schema interpolates; otherwise one phrase per offending joint or
-        muscle, e.g. ``"elbow_pitch = 0.61 rad (trained -0.49 … 0.50)"``.
+        muscle, e.g. ``"elbow_pitch = 0.61 rad (trained -0.49 … 0.50)"``. ``margin``: the
+        fraction of each range counted as inside beyond its outermost samples.
         """
         out: list[str] = []
         checks = [(np.asarray(theta, float), self.theta, joints, "rad")]
         if tension is not None and self.tension is not None:
             checks.append((np.asarray(tension, float), self.tension, muscles, "N"))
         for x, r, names, unit in checks:
-            lo, hi = self._widened(r).T
+            lo, hi = self._widened(r, margin).T
             for i in np.flatnonzero((x < lo) | (x > hi)):
                 name = names[i] if names else f"#{i}"
                 out.append(f"{name} = {x[i]:.3g} {unit} (trained {r[i, 0]:.3g} … "
                            f"{r[i, 1]:.3g})")
         return out
+
+    def clip(self, theta: np.ndarray, tension: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The nearest point (θ, f) inside the training ranges (with the margin)."""
+        th_lo, th_hi = self._widened(self.theta, MARGIN).T
+        theta = np.clip(theta, th_lo, th_hi)
+        if tension is not None and self.tension is not None:
+            f_lo, f_hi = self._widened(self.tension, MARGIN).T
+            tension = np.clip(tension, f_lo, f_hi)
+        return theta, tension

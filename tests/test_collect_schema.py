@@ -67,16 +67,27 @@ def test_schema_plan_uses_the_schemas_G_and_lengths(model, true_arm):
         assert np.abs(t.hold_command[held] - g.hold_command[held]).max() > 2e-5  # not the model
 
 
-def test_schema_falls_back_where_it_extrapolates(model, true_arm):
+def test_schema_is_anchored_a_little_beyond_its_range_and_unused_far_beyond(model, true_arm):
+    """Just outside the trained θ range: the schema at the edge plus the model's change
+    beyond (continuous, the schema's own values inside); far outside: the geometric plan."""
+    plan = SchemaPlan(model, ArmSchema(true_arm), 1, seed=4)
+    theta = plan.poses[0]
+    edge = Domain(np.stack([theta - 0.3, theta - 0.05], axis=1), WIDE.tension)
+    t = SchemaPlan(model, ArmSchema(true_arm, edge), 1, seed=4).target(0)
+    assert t.commanded_by == "schema+geometric" and "nearest trained point" in t.note
+    assert "shoulder_pitch" in t.note and "elbow_pitch" in t.note
+    clipped = theta - 0.05 + 0.05 * 0.25  # the edge widened by the margin: 5 % of 0.25 rad
+    want = (true_arm.length(clipped, t.tension) + model.length(theta, t.tension)
+            - model.length(clipped, t.tension))
+    np.testing.assert_allclose(t.hold_command[t.held], want[t.held], atol=1e-12)
+    g = CollectionPlan(model, 2, seed=4).target(0)
     narrow = Domain(np.tile([-0.01, 0.01], (2, 1)), WIDE.tension)
     t = SchemaPlan(model, ArmSchema(true_arm, narrow), 2, seed=4).target(0)
-    g = CollectionPlan(model, 2, seed=4).target(0)
-    assert t.commanded_by == "geometric" and "training range" in t.note
-    assert "shoulder_pitch" in t.note or "elbow_pitch" in t.note
+    assert t.commanded_by == "geometric" and "far outside" in t.note
     np.testing.assert_array_equal(t.hold_command, g.hold_command)
     low = Domain(WIDE.theta, np.tile([0.0, 20.0], (4, 1)))
     t = SchemaPlan(model, ArmSchema(true_arm, low), 2, seed=4).target(0)
-    assert t.commanded_by == "geometric" and "tension outside" in t.note
+    assert t.commanded_by == "geometric" and "tension far outside" in t.note
 
 
 def test_lengths_the_geometric_model_calls_dangerous_are_never_commanded(model, true_arm):

@@ -13,12 +13,14 @@ schema learned from collected samples knows the real paths, so for each target p
   correction of each path at this pose;
 * the move, the slack removal and its overshoot: exactly as in ``CollectionPlan``.
 
-A schema is trusted only where it was trained and where the geometric model and the tension
-limits agree its commands are safe: a pose or tension outside its training ranges, a QP that
-the schema's G cannot satisfy, or commands under which the geometric model predicts a wire
-above ``OVERSHOOT_CEILING``·f_max or the arm far from the pose, make that sample fall back to
-the geometric plan, with a note saying why (the collection warns and records
-``commanded_by`` per row).
+A schema is trusted where it was trained. A little beyond its training ranges (up to
+``EXTRAPOLATION_BAND`` of a range) it is anchored: the schema at the nearest trained point
+plus the geometric model's change from there (``EdgeAnchored``), so a network never
+extrapolates on its own; the row says ``schema+geometric``. Further out, a QP that the
+schema's G cannot satisfy, or commands under which the geometric model predicts a wire above
+``OVERSHOOT_CEILING``·f_max or the arm far from the pose, the sample falls back to the
+geometric plan. Every such sample carries a note saying why (the collection warns) and each
+row records ``commanded_by``.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from pimbs_hw.collection.plan import (
 
 TENSION_ITERATIONS = 6
 TENSION_TOL = 0.1  # N: fixed point of f ↔ G(θ, f) reached
+EXTRAPOLATION_BAND = 0.25  # fraction of a training range beyond which the schema is not used
 
 
 class Schema(Protocol):
@@ -51,6 +54,31 @@ class Schema(Protocol):
     def length(self, theta: Any, f: Any = None) -> np.ndarray: ...
 
     def jacobian(self, theta: Any, f: Any = None) -> np.ndarray: ...
+
+
+class EdgeAnchored:
+    """The schema inside its training ranges; beyond them, the schema at the nearest trained
+    point (θc, fc) plus the geometric model's change from there:
+
+        l(θ, f) = h(θc, fc) + l_geom(θ, f) − l_geom(θc, fc)
+        G(θ, f) = G_h(θc, fc) + G_geom(θ) − G_geom(θc)
+
+    Continuous at the edge and exactly the schema inside. What the schema learned about the
+    real paths is kept near the edge; only the change beyond it is the model's.
+    """
+
+    def __init__(self, schema: Schema, model: ArmModel) -> None:
+        self.schema, self.model = schema, model
+
+    def length(self, theta: np.ndarray, f: np.ndarray) -> np.ndarray:
+        tc, fc = self.schema.domain.clip(theta, f)
+        return (self.schema.length(tc, fc) + self.model.length(theta, f)
+                - self.model.length(tc, fc))
+
+    def jacobian(self, theta: np.ndarray, f: np.ndarray) -> np.ndarray:
+        tc, fc = self.schema.domain.clip(theta, f)
+        return (self.schema.jacobian(tc, fc) + self.model.muscle_jacobian(theta)
+                - self.model.muscle_jacobian(tc))
 
 
 class Unsafe(Exception):
@@ -70,7 +98,7 @@ class SchemaPlan(CollectionPlan):
                 f"{list(schema.muscles)}, but robot {model.robot.name} has "
                 f"{list(model.joints)} and {list(model.muscles)}; use a schema trained on "
                 "this robot's recordings")
-        self.schema = schema
+        self.schema, self.anchored = schema, EdgeAnchored(schema, model)
         self.f_max = np.array([m.f_max for m in model.robot.muscles])
 
     def target(self, i: int) -> Target:
@@ -82,15 +110,16 @@ class SchemaPlan(CollectionPlan):
                                        note=f"geometric model commanded it: {why}")
 
     def _learned(self, i: int, geo: Target) -> Target:
-        model, schema, theta = self.model, self.schema, geo.theta
-        outside = schema.domain.outside(theta, None, model.joints)
-        if outside:
-            raise Unsafe(f"pose outside the schema's training range ({'; '.join(outside)})")
+        model, domain, theta = self.model, self.schema.domain, geo.theta
+        far = domain.outside(theta, None, model.joints, margin=EXTRAPOLATION_BAND)
+        if far:
+            raise Unsafe(f"pose far outside the schema's training range ({'; '.join(far)})")
         tension = self._tensions(theta, geo.f_min, geo.tension)
-        outside = schema.domain.outside(theta, tension, model.joints, model.muscles)
-        if outside:
-            raise Unsafe(f"tension outside the schema's training range "
-                         f"({'; '.join(outside)})")
+        far = domain.outside(theta, tension, model.joints, model.muscles, EXTRAPOLATION_BAND)
+        if far:
+            raise Unsafe(f"tension far outside the schema's training range ({'; '.join(far)})")
+        outside = domain.outside(theta, tension, model.joints, model.muscles)
+        schema = self.anchored
         G = schema.jacobian(theta, tension)
         held = held_muscles(G, tension)
         learned = schema.length(theta, tension)
@@ -103,17 +132,21 @@ class SchemaPlan(CollectionPlan):
                     "approach")
         self._check(hold_mode, hold_command, theta, ceiling, "holding")
         approach, overshoot = self._overshoot(i, theta, tension, held, hold_mode, hold_command)
+        note = (f"outside the schema's training range ({'; '.join(outside)}): commanded with "
+                "the schema at the nearest trained point and the geometric model beyond it"
+                if outside else "")
         return dataclasses.replace(
             geo, tension=tension, held=held, approach_length=approach_length,
             hold_mode=hold_mode, hold_command=hold_command, approach=approach,
-            overshoot_command=overshoot, commanded_by="schema")
+            overshoot_command=overshoot,
+            commanded_by="schema+geometric" if outside else "schema", note=note)
 
     def _tensions(self, theta: np.ndarray, f_min: np.ndarray, start: np.ndarray
                   ) -> np.ndarray:
         """QP tensions with the schema's G(θ, f), iterated to a fixed point in f."""
         f = start
         for _ in range(TENSION_ITERATIONS):
-            G = self.schema.jacobian(theta, f)
+            G = self.anchored.jacobian(theta, f)
             try:
                 new = self.model.tensions_for(theta, G, f_min)
             except InfeasiblePoseError as exc:
