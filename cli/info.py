@@ -71,7 +71,11 @@ def pose_accuracy(rec) -> list[str]:
     source = rec.meta.get("theta_source")
     note = "   (θ estimated by the model, not measured)" if source == "model" else ""
     schema = rec.meta.get("schema")
-    by = f"   [commanded with body schema {schema}]" if schema else ""
+    by = ""
+    if schema:
+        kinds, counts = np.unique(np.asarray(rec.array("commanded_by"), str), return_counts=True)
+        split = ", ".join(f"{c} {k}" for k, c in zip(kinds, counts, strict=True))
+        by = f"   [commanded with body schema {schema}: {split}]"
     return [f"  pose accuracy rms(θ − θ_command)  {per_joint}{by}{note}"]
 
 
