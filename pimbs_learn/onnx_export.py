@@ -10,6 +10,7 @@ can check that it feeds the columns its schema expects.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -32,7 +33,7 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
     import onnx
 
     schema = load_body_schema(model_dir)
-    graph = SchemaGraph(schema).eval()
+    graph = _Exported(_graph(schema), schema.atl).eval()
     d = schema.domain
     theta = torch.as_tensor(np.tile(d.theta.mean(axis=1), (2, 1)), dtype=torch.float32)
     f_mid = d.tension.mean(axis=1) if d.tension is not None else np.ones(schema.n_muscles)
@@ -42,8 +43,10 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
     batch = {0: "batch"}
     with warnings.catch_warnings():
         # torch ≥ 2.9 deprecates the TorchScript exporter in favour of torch.export + onnxscript;
-        # for this graph of matmuls and tanh it is exact, small and needs no extra dependency.
+        # it traces this graph exactly (constants folded) and needs no extra dependency, where
+        # torch.export refuses the schema's data-dependent scalars.
         warnings.simplefilter("ignore", DeprecationWarning)
+        _register_symbolics()
         torch.onnx.export(graph, (theta, tension), str(tmp), dynamo=False,
                           input_names=list(INPUTS), output_names=list(OUTPUTS),
                           dynamic_axes={k: batch for k in INPUTS + OUTPUTS},
@@ -59,6 +62,42 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
     onnx.save(model, str(tmp))
     os.replace(tmp, out)
     return meta
+
+
+def _graph(schema: Any) -> torch.nn.Module:
+    """The schema's own evaluation graph in float32 (a copy: the loaded schema keeps its own)."""
+    own = getattr(schema, "graph", None)
+    return copy.deepcopy(own).float() if own is not None else SchemaGraph(schema)
+
+
+class _Exported(torch.nn.Module):
+    """The schema's graph with one interface for both maps.
+
+    An AL-Map does not use the tensions, and the exporter drops unused inputs; adding
+    ``0·tension`` keeps the ``tension`` input, so a controller calls every schema alike.
+    """
+
+    def __init__(self, graph: torch.nn.Module, atl: bool) -> None:
+        super().__init__()
+        self.graph, self.atl = graph, atl
+
+    def forward(self, theta: torch.Tensor, tension: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        length, G = self.graph(theta, tension)
+        return (length if self.atl else length + 0.0 * tension), G
+
+
+def _matrix_transpose(g: Any, x: Any) -> Any:
+    """ONNX for ``Tensor.mT`` (swap the last two axes), which the TorchScript exporter lacks."""
+    from torch.onnx import symbolic_helper
+
+    perm = list(range(symbolic_helper._get_tensor_rank(x)))
+    perm[-2], perm[-1] = perm[-1], perm[-2]
+    return g.op("Transpose", x, perm_i=perm)
+
+
+def _register_symbolics() -> None:
+    torch.onnx.register_custom_op_symbolic("aten::mT", _matrix_transpose, OPSET)
 
 
 def metadata(schema: Any, model_dir: Path) -> dict[str, str]:
