@@ -107,7 +107,7 @@ def _select(specs: list, tables: str, n_train: tuple[int, ...]) -> list:
     specs = [s for s in specs if int(s.key[-1]) in wanted]
     if not n_train:
         return specs
-    offered = ", ".join(f"table {s.key[-1]}: {', '.join(map(str, s.n_train))}" for s in specs)
+    offered = "; ".join(f"table {s.key[-1]}: {', '.join(map(str, s.n_train))}" for s in specs)
     kept = [replace(s, n_train=tuple(n for n in s.n_train if n in n_train)) for s in specs]
     missing = sorted(set(n_train) - {n for s in kept for n in s.n_train})
     if missing:
