@@ -59,9 +59,16 @@ def plot_curves(t: TableResult, path: Path) -> Path:
         ax.set_xlabel("epoch")
         ax.set_ylabel("L_eval ×1e5 [m²]")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"{t.spec.title}\nline: mean, band: min–max over seeds", fontsize=9)
-    fig.tight_layout()
+    # one legend above the panels (inside one, up to 7 methods hide its curves)
+    handles, names = axes[0][0].get_legend_handles_labels()
+    ncol = min(len(names), 2 * len(ns))  # a single panel is too narrow for 4 columns
+    rows = -(-len(names) // ncol)
+    top = 1 - (0.3 + 0.2 * rows) / fig.get_figheight()
+    fig.suptitle(f"{t.spec.title}   (line: mean, band: min–max over seeds)", fontsize=10,
+                 y=0.995)
+    fig.legend(handles, names, loc="upper center", ncol=ncol, fontsize=8,
+               frameon=False, bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()))
+    fig.tight_layout(rect=(0, 0, 1, top))
     return save_png(fig, path, dpi=120)
 
 
