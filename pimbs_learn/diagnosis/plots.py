@@ -85,8 +85,11 @@ def _implied_errors(err: np.ndarray, data, muscles: list[str], path: Path) -> Pa
         a = data.approach[:, j]
         groups = {"shortening": err[a < 0, j], "still": err[a == 0, j],
                   "lengthening": err[a > 0, j]}
-        kept = {f"{name}\n(n={g.size})": g for name, g in groups.items() if g.size}
-        axes[j, 0].boxplot(list(kept.values()), tick_labels=list(kept))
+        full = [k for k, g in enumerate(groups.values()) if g.size]  # same x in every row
+        axes[j, 0].boxplot([list(groups.values())[k] for k in full], positions=full)
+        axes[j, 0].set_xticks(range(3), [f"{name}\n(n={g.size})"
+                                          for name, g in groups.items()])
+        axes[j, 0].set_xlim(-0.5, 2.5)
         axes[j, 1].scatter(data.temperature[:, j], err[:, j], s=5, alpha=0.5)
         axes[j, 2].scatter(data.time / 60, err[:, j], s=5, alpha=0.5)
         axes[j, 0].set_ylabel(f"{muscles[j]} error [N]")
