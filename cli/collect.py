@@ -99,9 +99,9 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     from pimbs_hw.mock.faults import parse_faults
 
     simulated = is_simulated(port)
-    if (faults or conceal or mock_speed != 1.0) and not simulated:
-        raise click.UsageError(f"--fault, --conceal and --mock-speed act on the simulated "
-                               f"arm only; use --port virtual, not {port!r}")
+    if (faults or conceal) and not simulated:
+        raise click.UsageError(f"--fault and --conceal act on the simulated arm only; "
+                               f"use --port virtual, not {port!r}")
     if resume and out is None:
         raise click.UsageError("--resume needs --out FILE (the recording to continue)")
     model = ArmModel.load(robot)

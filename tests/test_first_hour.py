@@ -207,13 +207,6 @@ def test_collect_resume_of_a_simulated_file_says_what_it_is(tmp_path, arm):
     assert _tree(tmp_path) == before
 
 
-def test_collect_refuses_simulator_options_on_a_real_port(tmp_path):
-    code, out = _run("collect", "--port", "can0", "--samples", 5, "--mock-speed", 5,
-                     "--out", tmp_path / "x.parquet")
-    assert code == 2 and "--mock-speed" in out and "'can0'" in out
-    assert list(tmp_path.iterdir()) == []
-
-
 def test_collect_log_lines_show_how_far_it_got():
     from rich.console import Console
 
