@@ -121,7 +121,7 @@ def main() -> None:
         model = a.work / f"model-{n}"
         if a.retrain or not (model / "model.json").exists():
             pimbs("train", data, "--eval", test, "--epochs", a.epochs, "--threads", 1,
-                  "--out", model, "--json", a.work / f"train-{n}.json")
+                  "--out", model, "--json", a.work / f"train-{n}.json", "--force")
         from pimbs_learn import load_body_schema
 
         schema = load_body_schema(model)

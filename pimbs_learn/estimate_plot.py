@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 
 from pimbs_learn.estimate import DEG, JointAngleReport
-from pimbs_learn.figures import _pyplot
+from pimbs_learn.figures import pyplot, save_png
 
 
 def estimate_figure(report: JointAngleReport, measured: np.ndarray, path: Path) -> Path:
     """Scatter of estimate vs measurement (deg), learned and geometric, with the diagonal."""
-    plt = _pyplot()
+    plt = pyplot()
     n = len(report.joints)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.6), squeeze=False)
     for k, (ax, name) in enumerate(zip(axes[0], report.joints, strict=True)):
@@ -29,6 +29,4 @@ def estimate_figure(report: JointAngleReport, measured: np.ndarray, path: Path) 
         ax.set_ylabel("estimated θ [°]")
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)

@@ -21,6 +21,7 @@ from pimbs_hw.collection.routine import Collector
 from pimbs_hw.collection.schema_plan import SchemaPlan
 from pimbs_hw.collection.session import open_link
 from pimbs_hw.collection.settle import SettleConfig
+from pimbs_hw.safety import SafetyStop
 from pimbs_learn.domain import Domain
 from pimbs_learn.estimate import GeometricSchema
 from tests.schema_models import small_model
@@ -107,13 +108,21 @@ def test_schema_of_another_arm_is_refused(model):
 
 
 def _collect(path, plan, seed: int):
+    """Collect with ``plan``; a stop of the simulated boards on a loaded machine (their
+    physics shares this process's CPU) is resumed, as a user would."""
     meta = collection_meta(plan.model, plan.meta(), port="virtual", simulated=True,
                            settle={}, move={})
-    writer, start = open_recording(path, meta, False)
-    with open_link("virtual", plan.model.robot, conceal=[ROUTING], seed=seed,
-                   speed=20) as link:
-        Collector(link, plan.model, plan, writer, start, SettleConfig(window=0.06),
-                  move=MoveConfig(speed=20)).run()
+    for attempt in range(4):
+        writer, start = open_recording(path, meta, attempt > 0)
+        try:
+            with open_link("virtual", plan.model.robot, conceal=[ROUTING], seed=seed,
+                           speed=20) as link:
+                Collector(link, plan.model, plan, writer, start, SettleConfig(window=0.06),
+                          move=MoveConfig(speed=20)).run()
+            break
+        except SafetyStop:
+            if attempt == 3:
+                raise
     rec = read_recording(path)
     return rec, np.sqrt(np.mean((rec.theta - rec.theta_command) ** 2, axis=0))
 
@@ -129,27 +138,37 @@ def test_a_right_schema_reaches_the_poses_the_model_misses(model, true_arm, tmp_
     assert rec.array("commanded_by").tolist() == ["schema"] * n
 
 
+def _cli_collect(out, *args: str):
+    """`pimbs collect` to completion; stops of the simulated boards on a loaded machine are
+    resumed (what the error message tells a user to do)."""
+    fast = ["--mock-speed", "20", "--settle-window", "0.06", "--port", "virtual"]
+    for attempt in range(4):
+        res = CliRunner().invoke(main, ["collect", *fast, *args, "--out", str(out),
+                                        *(["--resume"] if attempt else [])])
+        if res.exit_code == 0 or "--resume" not in res.output:
+            return res
+    return res
+
+
 def test_cli_collect_with_a_trained_schema(tmp_path):
     model_dir, _ = small_model(tmp_path, epochs=30)
-    fast = ["--mock-speed", "20", "--settle-window", "0.06", "--port", "virtual"]
     out = tmp_path / "s.parquet"
-    res = CliRunner().invoke(main, ["collect", *fast, "--samples", "3", "--seed", "2",
-                                    "--schema", str(model_dir), "--out", str(out)])
+    res = _cli_collect(out, "--samples", "3", "--seed", "2", "--schema", str(model_dir))
     assert res.exit_code == 0, res.output
     rec = read_recording(out)
     assert rec.meta["schema"] == str(model_dir) and len(rec.meta["schema_weights_sha256"]) == 64
-    assert set(rec.array("commanded_by").tolist()) <= {"schema", "geometric"}
+    assert set(rec.array("commanded_by").tolist()) <= {"schema", "schema+geometric",
+                                                       "geometric"}
     info = CliRunner().invoke(main, ["info", str(out)])
     assert "pose accuracy" in info.output and "body schema" in info.output
     # a geometric collection is not continued with a schema (nor the other way round)
     plain = tmp_path / "g.parquet"
-    assert CliRunner().invoke(main, ["collect", *fast, "--samples", "3", "--seed", "2",
-                                     "--out", str(plain)]).exit_code == 0
-    res = CliRunner().invoke(main, ["collect", *fast, "--samples", "3", "--seed", "2",
-                                    "--schema", str(model_dir), "--out", str(plain),
-                                    "--resume"])
+    assert _cli_collect(plain, "--samples", "3", "--seed", "2").exit_code == 0
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--samples", "3",
+                                    "--seed", "2", "--schema", str(model_dir), "--out",
+                                    str(plain), "--resume"])
     assert res.exit_code == 1 and "rerun without --schema" in res.output
-    res = CliRunner().invoke(main, ["collect", *fast, "--samples", "1", "--robot",
-                                    "left-arm-5dof", "--schema", str(model_dir), "--out",
-                                    str(tmp_path / "5.parquet")])
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--samples", "1",
+                                    "--robot", "left-arm-5dof", "--schema", str(model_dir),
+                                    "--out", str(tmp_path / "5.parquet")])
     assert res.exit_code == 1 and "trained on this robot" in res.output

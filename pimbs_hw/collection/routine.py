@@ -174,19 +174,20 @@ class Collector:
         self._holding(target, lambda: self.writer.append(row))  # RecordingWriteError raises
 
     def _next_target(self, i: int, previous: Target | None) -> Target:
-        """Plan sample ``i`` while the arm still holds ``previous``: a plan takes several
-        equilibrium solves (more with a learned schema), longer than a watchdog period."""
-        if previous is None:
-            return self.plan.target(i)
+        """Plan sample ``i`` while the arm still holds ``previous`` (or, relaxed, is read): a
+        plan takes several equilibrium solves (more with a learned schema), longer than a
+        watchdog period."""
         return self._holding(previous, lambda: self.plan.target(i))
 
-    def _holding(self, target: Target, work: Callable[[], Any]) -> Any:
-        """``work()`` in a worker thread while ``target``'s holding is commanded; its result."""
+    def _holding(self, target: Target | None, work: Callable[[], Any]) -> Any:
+        """``work()`` in a worker thread while ``target``'s holding is commanded (None: the
+        arm is only read); its result."""
         with concurrent.futures.ThreadPoolExecutor(1, "collection-worker") as pool:
             done = pool.submit(work)
             try:
                 while not done.done():
-                    self.link.command(target.hold_mode, target.hold_command)
+                    if target is not None:
+                        self.link.command(target.hold_mode, target.hold_command)
                     self.link.read()
                     concurrent.futures.wait([done], timeout=self.settle.poll)
             finally:

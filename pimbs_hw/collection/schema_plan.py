@@ -102,19 +102,20 @@ class SchemaPlan(CollectionPlan):
         self.f_max = np.array([m.f_max for m in model.robot.muscles])
 
     def target(self, i: int) -> Target:
-        geometric = super().target(i)
         try:
-            return self._learned(i, geometric)
-        except Unsafe as why:
-            return dataclasses.replace(geometric, commanded_by="geometric",
+            return self._learned(i)
+        except Unsafe as why:  # the geometric plan is computed only where it is used
+            return dataclasses.replace(super().target(i), commanded_by="geometric",
                                        note=f"geometric model commanded it: {why}")
 
-    def _learned(self, i: int, geo: Target) -> Target:
-        model, domain, theta = self.model, self.schema.domain, geo.theta
+    def _learned(self, i: int) -> Target:
+        model, domain, theta = self.model, self.schema.domain, self.poses[i]
         far = domain.outside(theta, None, model.joints, margin=EXTRAPOLATION_BAND)
         if far:
             raise Unsafe(f"pose far outside the schema's training range ({'; '.join(far)})")
-        tension = self._tensions(theta, geo.f_min, geo.tension)
+        # the geometric QP's tensions start the fixed point (InfeasiblePoseError: skipped)
+        start = model.tension_distribution(theta, self.f_min[i])
+        tension = self._tensions(theta, self.f_min[i], start)
         far = domain.outside(theta, tension, model.joints, model.muscles, EXTRAPOLATION_BAND)
         if far:
             raise Unsafe(f"tension far outside the schema's training range ({'; '.join(far)})")
@@ -125,8 +126,10 @@ class SchemaPlan(CollectionPlan):
         learned = schema.length(theta, tension)
         hold_command = np.where(held, learned, tension)
         hold_mode = tuple("length" if x else "tension" for x in held)
-        # The schema's correction of each path at this pose, carried to the approach lengths.
-        approach_length = geo.approach_length + (learned - model.length(theta, tension))
+        # The schema's correction of each path at this pose, carried to the approach lengths
+        # (the geometric plan's: every wire at the pretension).
+        approach_length = (model.length(theta, self.pretension)
+                           + (learned - model.length(theta, tension)))
         ceiling = np.maximum(OVERSHOOT_CEILING * self.f_max, tension)
         self._check(("length",) * model.n_muscles, approach_length, theta, ceiling,
                     "approach")
@@ -135,11 +138,11 @@ class SchemaPlan(CollectionPlan):
         note = (f"outside the schema's training range ({'; '.join(outside)}): commanded with "
                 "the schema at the nearest trained point and the geometric model beyond it"
                 if outside else "")
-        return dataclasses.replace(
-            geo, tension=tension, held=held, approach_length=approach_length,
-            hold_mode=hold_mode, hold_command=hold_command, approach=approach,
-            overshoot_command=overshoot,
-            commanded_by="schema+geometric" if outside else "schema", note=note)
+        return Target(index=i, theta=theta, f_min=self.f_min[i], tension=tension, held=held,
+                      approach_length=approach_length, hold_mode=hold_mode,
+                      hold_command=hold_command, approach=approach,
+                      overshoot_command=overshoot,
+                      commanded_by="schema+geometric" if outside else "schema", note=note)
 
     def _tensions(self, theta: np.ndarray, f_min: np.ndarray, start: np.ndarray
                   ) -> np.ndarray:
