@@ -35,6 +35,7 @@ def command(model: Path, data: Path, robot: str | None, starts: int, json_path: 
     import numpy as np
     import torch
 
+    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn import load_body_schema
     from pimbs_learn.data import LearnError, load_samples
     from pimbs_learn.estimate import joint_angle_report
@@ -61,7 +62,7 @@ def command(model: Path, data: Path, robot: str | None, starts: int, json_path: 
     if json_path is not None:
         out = {"model": str(model), "data": str(data), "n_samples": samples.n_samples,
                **report.to_json()}
-        json_path.write_text(json.dumps(out, indent=2) + "\n")
+        write_text_atomic(json_path, json.dumps(out, indent=2) + "\n")
     if plot_path is not None:
         from pimbs_learn.estimate_plot import estimate_figure
 

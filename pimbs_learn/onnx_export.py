@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import io
 import json
-import os
 import warnings
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from pimbs_calibration.atomic import write_bytes_atomic
 from pimbs_learn.export_graph import SchemaGraph
 from pimbs_learn.io import WEIGHTS, load_body_schema
 
@@ -29,7 +30,7 @@ OPSET = 17
 
 
 def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
-    """Write ``out`` (atomically) and return the metadata stored in it."""
+    """Write ``out`` (whole or not at all) and return the metadata stored in it."""
     import onnx
 
     schema = load_body_schema(model_dir)
@@ -39,7 +40,7 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
     f_mid = d.tension.mean(axis=1) if d.tension is not None else np.ones(schema.n_muscles)
     tension = torch.as_tensor(np.tile(f_mid, (2, 1)), dtype=torch.float32)
     out = Path(out)
-    tmp = out.with_name(f".{out.name}.tmp")
+    buffer = io.BytesIO()
     batch = {0: "batch"}
     with warnings.catch_warnings():
         # torch ≥ 2.9 deprecates the TorchScript exporter in favour of torch.export + onnxscript;
@@ -47,11 +48,11 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
         # torch.export refuses the schema's data-dependent scalars.
         warnings.simplefilter("ignore", DeprecationWarning)
         _register_symbolics()
-        torch.onnx.export(graph, (theta, tension), str(tmp), dynamo=False,
+        torch.onnx.export(graph, (theta, tension), buffer, dynamo=False,
                           input_names=list(INPUTS), output_names=list(OUTPUTS),
                           dynamic_axes={k: batch for k in INPUTS + OUTPUTS},
                           opset_version=OPSET, do_constant_folding=True)
-    model = onnx.load(str(tmp))
+    model = onnx.load_from_string(buffer.getvalue())
     meta = metadata(schema, Path(model_dir))
     for key, value in meta.items():
         entry = model.metadata_props.add()
@@ -59,8 +60,7 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
     model.doc_string = ("PIMBS body schema: length [B,M] m and G = d length / d theta "
                         "[B,M,N] m/rad from theta [B,N] rad and tension [B,M] N")
     onnx.checker.check_model(model)
-    onnx.save(model, str(tmp))
-    os.replace(tmp, out)
+    write_bytes_atomic(out, model.SerializeToString())
     return meta
 
 
