@@ -111,11 +111,13 @@ def main() -> None:
     test = collect(a.work / "test.parquet", a.test_samples, a.test_seed, conceal, a.mock_speed)
     rec = read_recording(test)
     arm = ArmModel.load(rec.robot)
-    results = {"conceal": conceal, "epochs": a.epochs, "test_samples": rec.n_rows,
+    saved = a.work / "results.json"  # sizes run before (e.g. with other --epochs) are kept
+    before = json.loads(saved.read_text())["schemas"] if saved.exists() else {}
+    results = {"conceal": conceal, "test_samples": rec.n_rows,
                "geometric": {"length_rms_mm": length_rms_mm(arm.length(rec.theta, rec.tension),
                                                             rec.length),
                              "pose_rms_deg": pose_rms_deg(test).tolist()},
-               "schemas": {}}
+               "schemas": before}
     for n in sizes:
         data = first_rows(train_all, n, a.work / f"train-{n}.parquet")
         model = a.work / f"model-{n}"
@@ -136,8 +138,9 @@ def main() -> None:
         pimbs("export", model, "--onnx", onnx, "--force")
         tr = read_recording(data)
         commanded_rec = read_recording(commanded)
-        results["schemas"][n] = {
-            "n_train": tr.n_rows,
+        results["schemas"][str(n)] = {
+            "n_train": tr.n_rows, "epochs": a.epochs,
+            "structure": schema.meta.get("structure", "mlp"),
             "length_rms_mm": length_rms_mm(schema.length(rec.theta, rec.tension), rec.length),
             "pose_rms_deg": pose_rms_deg(commanded).tolist(),
             "commanded_by_schema": int((commanded_rec.array("commanded_by") == "schema").sum()),
@@ -146,7 +149,8 @@ def main() -> None:
                 onnx_lengths(onnx, tr.theta, tr.tension), tr.length),
         }
         results["geometric"]["estimate_rms_deg"] = angles["geometric_rms_error_deg"]
-    (a.work / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    results["schemas"] = dict(sorted(results["schemas"].items(), key=lambda kv: int(kv[0])))
+    saved.write_text(json.dumps(results, indent=2) + "\n")
     print(table(results, rec.joints))
 
 
@@ -155,8 +159,7 @@ def table(r: dict, joints: list[str]) -> str:
         return " / ".join(f"{x:.2f}" for x in v)
 
     g = r["geometric"]
-    lines = [f"conceal: {', '.join(r['conceal'])}; {r['test_samples']} new poses; "
-             f"{r['epochs']} epochs",
+    lines = [f"conceal: {', '.join(r['conceal'])}; {r['test_samples']} new poses",
              f"| commanded / estimated by | length error, new poses [mm rms] | pose error "
              f"[° rms, {' / '.join(joints)}] | joint-angle estimate [° rms] |",
              "|---|---|---|---|",
@@ -164,7 +167,8 @@ def table(r: dict, joints: list[str]) -> str:
              f"{deg(g['estimate_rms_deg'])} |"]
     for s in r["schemas"].values():
         ratio = np.asarray(g["pose_rms_deg"]) / np.asarray(s["pose_rms_deg"])
-        lines.append(f"| schema, {s['n_train']} samples | {s['length_rms_mm']:.3f} | "
+        lines.append(f"| schema, {s['n_train']} samples ({s['epochs']} epochs, "
+                     f"{s['structure']}) | {s['length_rms_mm']:.3f} | "
                      f"{deg(s['pose_rms_deg'])} ({' / '.join(f'{x:.1f}×' for x in ratio)} "
                      f"better; {s['commanded_by_schema']}/{r['test_samples']} by the schema) | "
                      f"{deg(s['estimate_rms_deg'])} |")
