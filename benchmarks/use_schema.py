@@ -94,6 +94,8 @@ def main() -> None:
     ap.add_argument("--conceal", action="append", default=[],
                     help="further concealed effects, e.g. link_mass:1.2")
     ap.add_argument("--sizes", default="50,100,200")
+    ap.add_argument("--train-samples", type=int, default=200,
+                    help="training collection; the schemas use its first --sizes rows")
     ap.add_argument("--test-samples", type=int, default=20)
     ap.add_argument("--train-seed", type=int, default=31)
     ap.add_argument("--test-seed", type=int, default=32)
@@ -106,8 +108,8 @@ def main() -> None:
     conceal = [f"routing:{a.routing},seed={a.arm_seed}", *a.conceal]
     sizes = [int(s) for s in a.sizes.split(",")]
 
-    train_all = collect(a.work / "train.parquet", max(sizes), a.train_seed, conceal,
-                        a.mock_speed)
+    train_all = collect(a.work / "train.parquet", max(a.train_samples, *sizes), a.train_seed,
+                        conceal, a.mock_speed)
     test = collect(a.work / "test.parquet", a.test_samples, a.test_seed, conceal, a.mock_speed)
     rec = read_recording(test)
     arm = ArmModel.load(rec.robot)
