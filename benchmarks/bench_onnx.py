@@ -3,8 +3,8 @@
 Times ``length`` and ``G`` of one pose through ONNX Runtime (1 intra-op and 1 inter-op
 thread, sequential execution, inputs bound once as a controller would), and a batch of 100
 poses, against the same model in torch (``BodySchema``, float64, 1 thread). The weights do
-not change the cost, so by default the model is the paper's architecture (2 → … ; hidden
-1000) trained for a few epochs on a simulated recording; pass ``--model DIR`` for yours.
+not change the cost, so by default the model is `pimbs train`'s architecture (hidden 1000)
+trained for a few epochs on a simulated recording of ``--robot``; or pass ``--model DIR``.
 
     nice -n 10 .venv/bin/python benchmarks/bench_onnx.py
 """
@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 
-def tiny_model(tmp: Path) -> Path:
+def tiny_model(tmp: Path, robot: str) -> Path:
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_calibration.recording import write_recording
     from pimbs_calibration.simulate import simulate
@@ -30,7 +30,7 @@ def tiny_model(tmp: Path) -> Path:
     from pimbs_learn.session import prepare_run
     from pimbs_learn.train import train
 
-    data, meta = simulate(ArmModel.load("two-link-4-muscle"), 40, "atl", seed=1)
+    data, meta = simulate(ArmModel.load(robot), 40, "atl", seed=1)
     write_recording(tmp / "d.parquet", data, meta)
     run = prepare_run(tmp / "d.parquet", LossConfig.parse("basic", 0.0), n_train=30)
     return save_model(train(run, TrainOptions(epochs=5)), tmp / "model")
@@ -55,11 +55,12 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", type=Path, default=None)
+    ap.add_argument("--robot", default="two-link-4-muscle", help="arm of the default model")
     ap.add_argument("--repeat", type=int, default=5000)
     a = ap.parse_args()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        model = a.model or tiny_model(Path(tmp))
+        model = a.model or tiny_model(Path(tmp), a.robot)
         onnx = Path(tmp) / "schema.onnx"
         export_onnx(model, onnx)
         opts = ort.SessionOptions()
@@ -71,7 +72,7 @@ def main() -> None:
         n, m = schema.n_joints, schema.n_muscles
         rows = []
         for batch in (1, 100):
-            theta = rng.uniform(-0.4, 0.4, (batch, n)).astype(np.float32)
+            theta = rng.uniform(*schema.domain.theta.T, (batch, n)).astype(np.float32)
             f = rng.uniform(20, 300, (batch, m)).astype(np.float32)
             binding = sess.io_binding()
             binding.bind_cpu_input("theta", theta)
