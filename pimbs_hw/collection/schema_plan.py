@@ -39,8 +39,8 @@ from pimbs_hw.collection.plan import (
     held_muscles,
 )
 
-TENSION_ITERATIONS = 6
-TENSION_TOL = 0.1  # N: fixed point of f ↔ G(θ, f) reached
+TENSION_ITERATIONS = 30  # linear convergence where G depends on f (an MLP ATL-Map)
+TENSION_TOL = 1.0  # N per iteration: the fixed point f ↔ G(θ, f) reached (3 µm of stretch)
 EXTRAPOLATION_BAND = 0.25  # fraction of a training range beyond which the schema is not used
 
 
