@@ -102,7 +102,12 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=20000)
     ap.add_argument("--mock-speed", type=float, default=10.0)
     ap.add_argument("--retrain", action="store_true")
+    ap.add_argument("--table", action="store_true", help="only print the table of --work")
     a = ap.parse_args()
+    if a.table:
+        r = json.loads((a.work / "results.json").read_text())
+        print(table(r, read_recording(a.work / "test.parquet").joints))
+        return
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     a.work.mkdir(parents=True, exist_ok=True)
     conceal = [f"routing:{a.routing},seed={a.arm_seed}", *a.conceal]
@@ -145,7 +150,9 @@ def main() -> None:
             "structure": schema.meta.get("structure", "mlp"),
             "length_rms_mm": length_rms_mm(schema.length(rec.theta, rec.tension), rec.length),
             "pose_rms_deg": pose_rms_deg(commanded).tolist(),
-            "commanded_by_schema": int((commanded_rec.array("commanded_by") == "schema").sum()),
+            "commanded_by": {k: int(v) for k, v in zip(*np.unique(
+                np.asarray(commanded_rec.array("commanded_by"), str), return_counts=True),
+                strict=True)},
             "estimate_rms_deg": angles["rms_error_deg"],
             "onnx_train_length_rms_mm": length_rms_mm(
                 onnx_lengths(onnx, tr.theta, tr.tension), tr.length),
@@ -169,10 +176,11 @@ def table(r: dict, joints: list[str]) -> str:
              f"{deg(g['estimate_rms_deg'])} |"]
     for s in r["schemas"].values():
         ratio = np.asarray(g["pose_rms_deg"]) / np.asarray(s["pose_rms_deg"])
+        by = s.get("commanded_by", {"schema": s.get("commanded_by_schema")})
         lines.append(f"| schema, {s['n_train']} samples ({s['epochs']} epochs, "
                      f"{s['structure']}) | {s['length_rms_mm']:.3f} | "
                      f"{deg(s['pose_rms_deg'])} ({' / '.join(f'{x:.1f}×' for x in ratio)} "
-                     f"better; {s['commanded_by_schema']}/{r['test_samples']} by the schema) | "
+                     f"better; {', '.join(f'{v} {k}' for k, v in by.items())}) | "
                      f"{deg(s['estimate_rms_deg'])} |")
     lines.append("ONNX length vs recorded, own training rows [mm rms]: " + ", ".join(
         f"n={n}: {s['onnx_train_length_rms_mm']:.3f}" for n, s in r["schemas"].items()))
