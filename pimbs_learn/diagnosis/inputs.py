@@ -47,6 +47,34 @@ class Paired:
     reference: Samples | None
     joints: list[str]
     muscles: list[str]
+    temp_zero: np.ndarray | None = None  # (M,) °C where each loadcell was zeroed
+    temp_zero_source: str = ""
+
+
+ZERO_TEMPERATURE_KEY = "loadcell_zero_temperature_C"
+FIRST_ROWS = 1  # session start: loadcells are zeroed just before the first pose; later rows
+# have warmed up already
+
+
+def zero_temperature(rec: Recording) -> tuple[np.ndarray, str]:
+    """Temperature at which each loadcell reads right (its zeroing), and where it came from.
+
+    A loadcell zeroed at the start of a session has no drift error at that temperature.
+    The recording may say it (metadata ``loadcell_zero_temperature_C``: one number or one
+    per muscle); otherwise the first row, taken right after zeroing, stands in.
+    """
+    m = len(rec.muscles)
+    value = rec.meta.get(ZERO_TEMPERATURE_KEY)
+    if value is not None:
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy() if np.ndim(
+            value) == 0 or len(value) == m else None
+        if arr is None or not np.all(np.isfinite(arr)):
+            raise DiagnosisInputError(
+                f"{rec.path}: metadata {ZERO_TEMPERATURE_KEY} must be one number or {m} "
+                f"(one per muscle), not {value!r}")
+        return arr, "metadata"
+    order = np.argsort(rec.time, kind="stable")[:FIRST_ROWS]
+    return rec.temperature[order].mean(axis=0), "first sample"
 
 
 def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
@@ -96,7 +124,8 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
                                       "tau_gravity; pass --robot to compute it")
         ref_s = samples_from(reference).rows(ib)
         ref_s.tau = ref_tau
-    return Paired(real_s, ref_s, real.joints, real.muscles)
+    temp_zero, source = zero_temperature(real)
+    return Paired(real_s, ref_s, real.joints, real.muscles, temp_zero, source)
 
 
 def length_weights(physics: Physics, data: Samples) -> tuple[np.ndarray, dict]:
@@ -140,10 +169,14 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
     lo, hi = real.theta.min(0), real.theta.max(0)
     center, scale = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-3)
     m = real.tension.shape[1]
+    temp_zero = (real.temperature[:FIRST_ROWS].mean(0) if paired.temp_zero is None
+                 else paired.temp_zero)
+    info["loadcell_zero_temperature_C"] = temp_zero.tolist()
+    info["loadcell_zero_temperature_source"] = paired.temp_zero_source or "first samples"
 
     def make(degree: int, kap: np.ndarray) -> Physics:
         return Physics(PolyBasis(real.theta.shape[1], degree, center, scale), kap, gravity,
-                       real.temperature.mean(0))
+                       temp_zero)
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)

@@ -8,10 +8,10 @@ import numpy as np
 import pyarrow as pa
 
 from pimbs_calibration.recording import Recording, read_recording, write_recording
-from pimbs_learn.diagnosis.fit import fit_effects
+from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import DiagnosisInputError, build_physics, pair
 from pimbs_learn.diagnosis.locate import locate
-from pimbs_learn.diagnosis.model import EFFECTS, Fit, apply_effects, evaluate
+from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
 from pimbs_learn.diagnosis.report import effect_entry
 from pimbs_learn.diagnosis.select import select_effects
 
@@ -52,17 +52,16 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
     null = fit_effects(physics, data, [], key="full")
-    named, tried, cv_null = select_effects(physics, data, null, effects, progress)
-    final: Fit = named[-1].fit if named else null
-    cv_final = named[-1].cv_after if named else cv_null
+    named, tried, cv_null, final = select_effects(physics, data, null, effects, progress)
+    # held-out score of the final model on the null model's noise scale (the "before")
+    cv_final = (cross_validate(physics, data, final.units, (null.sigma_len, null.sigma_tau),
+                               x0=final.params) if named else cv_null)
 
     r_len, r_tau = evaluate(physics, null, data, key="full")
     location = locate(physics, null, data, r_len, r_tau, paired.joints, paired.muscles,
                       paired.reference)
-    entries, base = [], null
-    for cand in named:
-        entries.append(effect_entry(cand, physics, data, paired.joints, paired.muscles, base))
-        base = cand.fit
+    entries = [effect_entry(cand, physics, data, paired.joints, paired.muscles, final)
+               for cand in named]
     result = {
         "real": str(real_rec.path), "reference": None if ref_rec is None else str(ref_rec.path),
         "robot": None if arm is None else arm.robot.name,
