@@ -8,7 +8,9 @@ own implementation. Used to check that the diagnosis works from the recordings a
 
 Several effects may be concealed at once (``effects=[(name, size, unit), ...]``), including
 a loadcell gain error (``tension_gain``: reads ``(1 + g)·f``) and a routing that differs
-from the reference (``routing``: random changes of the moment-arm table, in m).
+from the reference (``routing``: random changes of the moment-arm table, in m), and a
+``creep`` that no effect of PIMBS' vocabulary describes (a loadcell reading that grows
+linearly over the session, by ``size`` N in all).
 """
 
 from __future__ import annotations
@@ -94,6 +96,8 @@ def record(path, n: int, seed: int, effect: str | None = None, size: float = 0.0
                 reading[where] += value
             elif name == "thermal_drift":
                 reading += value * (temp - 22.0)
+            elif name == "creep":  # not in PIMBS' vocabulary: loadcell creeps with time
+                reading[where] += value * i / n
         th_meas = theta_cmd[i] + noise.normal(0, 1e-4, 3)
         cols["theta"][i] = th_meas
         cols["tension"][i] = reading + noise.normal(0, 0.5, 6)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pimbs_learn.diagnosis.detect import detectable_text
+from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
 from pimbs_learn.diagnosis.select import Candidate
 
@@ -113,9 +115,9 @@ def text_report(result: dict) -> str:
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")
     if not result["effects"]:
-        lines.append("No significant missing physics: the recording matches the model up to "
-                     "noise (no candidate passed the likelihood-ratio, BIC and "
-                     "cross-validation tests).")
+        lines.append("No significant missing physics: no candidate passed the "
+                     "likelihood-ratio, BIC and cross-validation tests (see below whether "
+                     "this recording could have seen one).")
     else:
         lines.append("Missing physics, most significant first:")
         for i, e in enumerate(result["effects"], 1):
@@ -128,6 +130,10 @@ def text_report(result: dict) -> str:
                                   if isinstance(v, float) and k != "se")
                 se = values.get("se")
                 lines.append(f"       {unit}: {shown}" + (f" (± {se:.2g})" if se else ""))
+    if "residual" in result:
+        lines += [""] + leftover_text(result["residual"])
+    if "detectable" in result:
+        lines += [""] + detectable_text(result["detectable"], not result["effects"])
     fit = result["fit"]
     lines += ["", f"Held-out fit ({fit['metric']}): before {fit['before']:.4g} → after "
                   f"{fit['after']:.4g}",

@@ -8,8 +8,10 @@ import numpy as np
 import pyarrow as pa
 
 from pimbs_calibration.recording import Recording, read_recording, write_recording
+from pimbs_learn.diagnosis.detect import detectable
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import DiagnosisInputError, build_physics, pair
+from pimbs_learn.diagnosis.leftover import leftover
 from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
 from pimbs_learn.diagnosis.report import effect_entry
@@ -73,6 +75,9 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
                 "length_rms_m": {"before": cv_null["length_rms"],
                                  "after": cv_final["length_rms"]}},
         "location": location,
+        "residual": leftover(physics, final, data, paired.joints, paired.muscles,
+                             paired.reference),
+        "detectable": detectable(physics, data, final, paired.joints, paired.muscles, effects),
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
                         "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
