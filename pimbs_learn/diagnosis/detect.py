@@ -4,9 +4,13 @@
 every effect (each muscle, joint, subtree) the Fisher information of its parameter at the
 final fit — with the body schema and the fitted effects profiled out, exactly as a real
 fit would — gives its standard error; an effect is named only if its likelihood-ratio
-statistic passes ``P_VALUE`` (and BIC), so the magnitude it is named at with 90 %
-probability is ``(z_needed + 1.28)·se``. The held-out checks can demand a little more;
-this is the recording's limit, not a promise.
+statistic passes ``P_VALUE`` (and BIC), so the likelihood-ratio test alone would name it
+with 90 % probability at ``(z_needed + 1.28)·se``. The held-out checks (paired z ≥ 5 on
+held-out rows) and the per-channel noise re-estimation demand more: measured on the 2-DOF
+arm with 30 AL samples, an offset of 2× that size had a likelihood ratio of 67 (not the
+predicted 150) and a held-out z of 4.0 (not named), 4× was named (docs/
+diagnosis-notebook.md). ``HELDOUT_FACTOR`` carries that measured margin, so the stated size
+is one the full procedure names, not one the first test alone would.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, Unit, un
 from pimbs_learn.diagnosis.select import FD_STEP, P_VALUE, _whitened
 
 POWER = 0.9
+HELDOUT_FACTOR = 3.5  # measured: see the module docs
 # Sizes a real arm commonly has (the confusion benchmark's "small" magnitudes): a recording
 # that could not see these is too small to give a clean bill of health.
 TYPICAL = {"tendon_friction": 0.05, "link_mass": 0.1, "tension_offset": 4.0,
@@ -50,7 +55,7 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
     sigma = (fit.sigma_len, fit.sigma_tau)
     r0 = _whitened(physics, data, fit.units, fit.params, sigma)
     z_needed = float(np.sqrt(max(chi2.isf(P_VALUE, 1), np.log(data.n))))
-    factor = z_needed + float(norm.ppf(POWER))
+    factor = HELDOUT_FACTOR * (z_needed + float(norm.ppf(POWER)))
     if fit.units:
         own = np.stack([_column(physics, data, fit, u, r0, sigma) for u in fit.units], 1)
         basis, _ = np.linalg.qr(own)
@@ -88,8 +93,9 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
                        "typical_detectable": bool(sizes[0][0] <= TYPICAL[effect])}
     return {"power": POWER, "p_value": P_VALUE,
             "meaning": "smallest effect on one muscle/joint/subtree that this recording "
-                       f"names with {POWER:.0%} probability (likelihood-ratio test at "
-                       f"p < {P_VALUE:g}, given the effects already named)",
+                       f"names with about {POWER:.0%} probability (likelihood-ratio test at "
+                       f"p < {P_VALUE:g} and held-out checks, given the effects already "
+                       "named; the held-out margin is measured, not derived)",
             "effects": out}
 
 

@@ -12,8 +12,10 @@ Two things look like structure and are not missing physics. The model's own appr
 (a polynomial body schema, a fitted gravity function) leave pose-shaped residuals: with a
 reference, the same test on the clean simulation of the same poses measures them, and only
 structure clearly stronger than the reference's (``REFERENCE_MARGIN`` × its F) counts.
-Length residuals are never tested against the pose (a routing the schema cannot follow is
-the schema's business). Measured tensions are not used as regressors: their own noise is
+A factor must also explain at least ``MIN_SHARE`` of
+the residual variance (partial R²). Length residuals are never tested against the pose (a
+routing the schema cannot follow is the schema's business). Measured tensions are not
+used as regressors: their own noise is
 in the torque residual, so they would always "explain" some of it.
 """
 
@@ -27,6 +29,9 @@ from pimbs_learn.diagnosis.model import Fit, Physics, Samples, evaluate
 from pimbs_learn.diagnosis.select import P_VALUE
 
 REFERENCE_MARGIN = 2.0
+# ... and only structure that carries a real share of what is left: with hundreds of rows a
+# schema's approximation error is "significant" yet small; a missing effect is not.
+MIN_SHARE = 0.2
 
 
 def _groups(data: Samples, joints: list[str], pose: bool) -> dict[str, np.ndarray]:
@@ -47,8 +52,10 @@ def _groups(data: Samples, joints: list[str], pose: bool) -> dict[str, np.ndarra
     return {k: v for k, v in groups.items() if v is not None and v.size}
 
 
-def _f_test(y: np.ndarray, full: np.ndarray, reduced: np.ndarray) -> tuple[float, float]:
-    """(F, p) of the columns in ``full`` beyond ``reduced`` (both include the constant)."""
+def _f_test(y: np.ndarray, full: np.ndarray, reduced: np.ndarray
+            ) -> tuple[float, float, float]:
+    """(F, p, partial R²) of the columns in ``full`` beyond ``reduced`` (both include the
+    constant)."""
     n = len(y)
     rss = []
     for x in (reduced, full):
@@ -57,9 +64,9 @@ def _f_test(y: np.ndarray, full: np.ndarray, reduced: np.ndarray) -> tuple[float
     q = full.shape[1] - reduced.shape[1]
     dof = n - full.shape[1]
     if q <= 0 or dof <= 0 or rss[1] <= 0:
-        return 0.0, 1.0
+        return 0.0, 1.0, 0.0
     f = (rss[0] - rss[1]) / q / (rss[1] / dof)
-    return float(f), float(f_dist.sf(f, q, dof))
+    return float(f), float(f_dist.sf(f, q, dof)), float((rss[0] - rss[1]) / rss[0])
 
 
 def _channels(r_len: np.ndarray, r_tau: np.ndarray, joints: list[str], muscles: list[str]):
@@ -91,11 +98,11 @@ def leftover(physics: Physics, fit: Fit, data: Samples, joints: list[str],
         tests = _group_tests(y, _groups(data, joints, pose))
         ref_tests = (_group_tests(ref_channels[c][1], _groups(reference, joints, pose))
                      if ref_channels else {})
-        where = [{"factor": name, "F": f, "p_value": p,
+        where = [{"factor": name, "F": f, "p_value": p, "share": share,
                   "F_reference": ref_tests[name][0] if name in ref_tests else None}
-                 for name, (f, p) in tests.items()
-                 if p < threshold and (name not in ref_tests
-                                       or f > REFERENCE_MARGIN * ref_tests[name][0])]
+                 for name, (f, p, share) in tests.items()
+                 if p < threshold and share >= MIN_SHARE
+                 and (name not in ref_tests or f > REFERENCE_MARGIN * ref_tests[name][0])]
         if where:
             where.sort(key=lambda w: -w["F"])
             found.append({"channel": label, "p_value": min(w["p_value"] for w in where),
