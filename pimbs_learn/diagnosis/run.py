@@ -54,7 +54,8 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
     null = fit_effects(physics, data, [], key="full")
-    named, tried, cv_null, final = select_effects(physics, data, null, effects, progress)
+    named, tried, cv_null, final = select_effects(physics, data, null, effects, progress,
+                                                  paired.reference)
     # held-out score of the final model on the null model's noise scale (the "before")
     cv_final = (cross_validate(physics, data, final.units, (null.sigma_len, null.sigma_tau),
                                x0=final.params) if named else cv_null)

@@ -19,7 +19,7 @@ new one makes redundant are dropped again (backward check).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -93,7 +93,12 @@ def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.nda
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
     """Units of ``effect`` that the residuals of ``base`` ask for (greedy, linearised)."""
     sigma = (base.sigma_len, base.sigma_tau)
-    groups = units_of(effect, data.theta.shape[1], data.tension.shape[1])
+    groups = [g for g in units_of(effect, data.theta.shape[1], data.tension.shape[1])
+              if not any(u in base.units for u in g)]  # an effect may grow, never repeat
+    taken = sum(any(u in base.units for u in g)
+                for g in units_of(effect, data.theta.shape[1], data.tension.shape[1]))
+    if not groups or taken >= MAX_GROUPS.get(effect, len(groups) + taken):
+        return []
     r0 = _whitened(physics, data, base.units, base.params, sigma)
     cols = {}
     for group in groups:
@@ -191,8 +196,43 @@ def _cv_of(physics: Physics, data: Samples, fit: Fit) -> dict:
                           x0=fit.params)
 
 
+def reference_explains(physics: Physics, reference: Samples, ref_null: Fit,
+                       cand: Candidate) -> bool:
+    """Is the candidate the model's own approximation rather than missing physics?
+
+    The reference is a clean simulation of the same poses. Where the nuisance models (a
+    polynomial body schema, a fitted gravity function) cannot follow the arm exactly, the
+    reference "wants" the same effect as the real data. Then the effect counts only if the
+    real parameters differ significantly from the reference's.
+    """
+    fit = fit_effects(physics, reference, cand.units, key="ref")
+    df = len(cand.units)
+    if chi2.sf(max(2.0 * (fit.log_lik - ref_null.log_lik), 0.0), df) >= P_VALUE:
+        return False
+    idx = [cand.fit.units.index(u) for u in cand.units]
+    if cand.fit.cov is None or fit.cov is None:
+        return False
+    diff = cand.fit.params[idx] - fit.params
+    cov = cand.fit.cov[np.ix_(idx, idx)] + fit.cov
+    stat = float(diff @ np.linalg.pinv(cov) @ diff)
+    return chi2.sf(stat, df) >= P_VALUE
+
+
+def _merge(named: list[Candidate], best: Candidate) -> list[Candidate]:
+    """Add ``best``; more units of an effect already named join that effect."""
+    old = next((c for c in named if c.effect == best.effect), None)
+    if old is None:
+        return [*named, best]
+    grown = replace(old, units=[*old.units, *best.units], fit=best.fit)
+    return [c for c in named if c is not old] + [grown]
+
+
+MAX_ROUNDS = 6
+
+
 def select_effects(physics: Physics, data: Samples, null: Fit,
-                   effects: tuple[str, ...] = EFFECTS, progress=None
+                   effects: tuple[str, ...] = EFFECTS, progress=None,
+                   reference: Samples | None = None
                    ) -> tuple[list[Candidate], list[Candidate], dict, Fit]:
     """Forward selection with a backward check after each step.
 
@@ -208,10 +248,12 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
     base, cv_base = null, cv_null
     named: list[Candidate] = []
     tried: list[Candidate] = []
-    remaining = list(effects)
-    while remaining and len(named) < MAX_EFFECTS:
+    if reference is not None and reference.n != data.n:
+        reference = None
+    ref_null = fit_effects(physics, reference, [], key="ref") if reference else None
+    for _ in range(MAX_ROUNDS):
         round_candidates = []
-        for effect in remaining:
+        for effect in effects:
             if progress:
                 progress(effect)
             cand = fit_candidate(physics, data, base, effect, cv_base)
@@ -223,13 +265,14 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
         best = None
         for cand in ranked[:CV_PER_ROUND]:
             _cross_validate(physics, data, cand, base)
-            if cand.significant:
+            if cand.significant and not (reference is not None and reference_explains(
+                    physics, reference, ref_null, cand)):
                 best = cand
                 break
         if best is None:
             break
-        named.append(best)
-        remaining.remove(best.effect)
-        named, base = prune(physics, data, named, best.fit)
+        named, base = prune(physics, data, _merge(named, best), best.fit)
+        if len({c.effect for c in named}) > MAX_EFFECTS:
+            break
         cv_base = _cv_of(physics, data, base)
     return named, tried, cv_null, base
