@@ -224,6 +224,16 @@ def main() -> None:
           f"false alarms on null: {sum(c['top'] != 'none' for c in cases if c['effect'] == 'none')}"
           f"; fit improved where named: {improved}/{sum(c['top'] != 'none' for c in hits)}; "
           f"median time {np.median([c['seconds'] for c in cases]):.1f} s")
+    print(summary_single(cases))
+
+
+def summary_single(cases: list[dict]) -> str:
+    """Set level on single-effect recordings: that effect alone (nothing on nulls)."""
+    exact = sum(c["named"] == ([] if c["effect"] == "none" else [c["effect"]]) for c in cases)
+    extra = [c for c in cases if c["top"] == c["effect"] and len(c["named"]) > 1]
+    kinds = sorted({n for c in extra for n in c["named"][1:]})
+    return (f"exact set (the concealed effect alone): {exact}/{len(cases)}; top right but more "
+            f"named: {len(extra)} (extra: {', '.join(kinds) or '-'})")
 
 
 if __name__ == "__main__":

@@ -183,7 +183,26 @@ def prune(physics: Physics, data: Samples, named: list[Candidate], current: Fit
             break
         named = [c for c in named if c is not worst]
         current = worst_fit
-    return named, current
+    return _prune_units(physics, data, named, current)
+
+
+def _prune_units(physics: Physics, data: Samples, named: list[Candidate], current: Fit
+                 ) -> tuple[list[Candidate], Fit]:
+    """Drop muscles/joints of a named effect that the joint fit finds indistinguishable
+    from zero (a gain taken along on a muscle whose offset came later)."""
+    if current.cov is None:
+        return named, current
+    z = np.abs(current.params) / np.sqrt(np.maximum(np.diag(current.cov), 1e-300))
+    weak = []
+    for c in named:
+        low = [u for u in c.units if z[current.units.index(u)] < UNIT_Z]
+        if c.effect != "link_mass" and len(low) < len(c.units):
+            weak += low
+    if not weak:
+        return named, current
+    named = [replace(c, units=[u for u in c.units if u not in weak]) for c in named]
+    units, params = _drop(current, weak)
+    return named, fit_effects(physics, data, units, x0=params, key="full")
 
 
 MAX_EFFECTS = 5
