@@ -102,7 +102,8 @@ def run_case(arm, effect, magnitude, seed, n, routing, workdir: Path,
         specs.append(f"routing:{routing}")
     paths = {}
     for name, hidden in (("sim", []), ("real", specs)):
-        data, meta = simulate(arm, n, "atl", seed=seed,
+        # same poses, independent sensor noise: a real arm never shares the simulator's
+        data, meta = simulate(arm, n, "atl", seed=seed, noise_seed=seed + (name == "real") * 1000,
                               effects=tuple(parse_effect(s, seed=seed) for s in hidden))
         paths[name] = workdir / f"{name}.parquet"
         write_recording(paths[name], data, meta)

@@ -64,15 +64,19 @@ def approach_direction(previous: np.ndarray, current: np.ndarray,
 
 def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0,
              effects: tuple[Effect, ...] = (), noise: float = 1.0,
-             sample_period: float = 4.0,
+             sample_period: float = 4.0, noise_seed: int | None = None,
              start: np.datetime64 = START,
              ) -> tuple[dict[str, np.ndarray], dict]:
-    """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording."""
+    """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording.
+
+    ``noise_seed`` draws other sensor noise for the same poses (default: from ``seed``), so a
+    "real" and a reference recording of the same poses need not share their noise.
+    """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
     pose_rng = np.random.default_rng([seed, 0])
     fmin_rng = np.random.default_rng([seed, 1])
-    noise_rng = np.random.default_rng([seed, 2])
+    noise_rng = np.random.default_rng([seed if noise_seed is None else noise_seed, 2])
     world = World(arm, tuple(effects))
     sigma = SensorNoise().scaled(noise)
     thermal = ThermalModel()
