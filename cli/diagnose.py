@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import check_output, force_option, user_errors
 
 
 @click.command("diagnose")
@@ -27,10 +27,15 @@ from pimbs_cli.common import user_errors
               help="directory for PNG plots")
 @click.option("--corrected", type=click.Path(dir_okay=False, path_type=Path),
               help="write the real recording with the named effects undone")
+@force_option()
 @user_errors
 def command(real: Path, reference: Path | None, robot: str | None, json_out: Path | None,
-            plots: Path | None, corrected: Path | None) -> None:
+            plots: Path | None, corrected: Path | None, force: bool) -> None:
     """Why does REAL disagree with the simulation? Name the physics the model left out."""
+    if json_out:  # refused before the work, not after it
+        check_output(json_out, force=force, what="file", option="--json")
+    if corrected:
+        check_output(corrected, force=force, what="recording", option="--corrected")
     from pimbs_learn.diagnosis.report import text_report
     from pimbs_learn.diagnosis.run import diagnose, write_corrected
 
@@ -38,7 +43,6 @@ def command(real: Path, reference: Path | None, robot: str | None, json_out: Pat
         real, reference, robot, progress=lambda e: click.echo(f"  testing {e} …", err=True))
     click.echo(text_report(result))
     if json_out:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result, indent=2))
         click.echo(f"\nJSON: {json_out}")
     if plots:

@@ -111,3 +111,29 @@ def test_detectable_size_separates_nothing_found_from_too_few_samples(tmp_path):
                                               f"muscles={muscle}"])
         result, _ = diagnose(real, ref)
         assert ("tension_offset" in [e["name"] for e in result["effects"]]) is named, factor
+
+
+def test_cli_reports_rest_and_limits_and_never_overwrites(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from pimbs_cli.main import main
+
+    arm = ArmModel.load("two-link-4-muscle")
+    real, ref = _pair(tmp_path, arm, 60, ["tension_gain:0.15,muscles=m1"], map_kind="atl")
+    out = tmp_path / "d.json"
+    out.write_text("keep me")
+    args = ["diagnose", str(real), "--reference", str(ref), "--json", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 1 and "--force" in r.output and out.read_text() == "keep me"
+    r = CliRunner().invoke(main, [*args, "--force"])
+    assert r.exit_code == 0, r.output
+    assert "tension_gain (m1" in r.output and "consistent with noise" in r.output
+    assert "Smallest effects this recording names" in r.output
+    result = json.loads(out.read_text())
+    assert result["effects"][0]["parameters"]["m1"]["gain"] == pytest.approx(0.15, abs=0.01)
+    assert set(result["detectable"]["effects"]) >= {"tendon_friction", "joint_offset"}
+    r = CliRunner().invoke(main, ["diagnose", str(real), "--reference", str(ref), "--json",
+                                  str(tmp_path / "no-such-dir" / "d.json")])
+    assert r.exit_code == 1 and "does not exist" in r.output
