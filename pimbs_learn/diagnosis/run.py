@@ -82,7 +82,8 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
                         "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
-                        "named": c in named} for c in tried],
+                        "named": any(c.effect == n.effect and set(c.units) <= set(n.units)
+                                     for n in named)} for c in tried],
         "model": {**model_info, "noise_torque_Nm": null.sigma_tau.tolist(),
                   "noise_length_m": null.sigma_len.tolist()},
     }

@@ -162,8 +162,8 @@ def _drop(fit: Fit, units: list[Unit]) -> tuple[list[Unit], np.ndarray]:
     return [fit.units[i] for i in keep], fit.params[keep]
 
 
-def prune(physics: Physics, data: Samples, named: list[Candidate], current: Fit
-          ) -> tuple[list[Candidate], Fit]:
+def prune(physics: Physics, data: Samples, named: list[Candidate], current: Fit,
+          newest: str) -> tuple[list[Candidate], Fit]:
     """Backward step: drop a named effect the others now explain (weakest first).
 
     An effect named early may have stood in for two that were present together (an offset
@@ -172,7 +172,7 @@ def prune(physics: Physics, data: Samples, named: list[Candidate], current: Fit
     """
     while len(named) > 1:
         worst, worst_fit, worst_lr = None, None, np.inf
-        for cand in named[:-1]:
+        for cand in (c for c in named if c.effect != newest):
             units, params = _drop(current, cand.units)
             reduced = fit_effects(physics, data, units, x0=params, key="full")
             lr = max(2.0 * (current.log_lik - reduced.log_lik), 0.0)
@@ -243,7 +243,7 @@ def _merge(named: list[Candidate], best: Candidate) -> list[Candidate]:
     if old is None:
         return [*named, best]
     grown = replace(old, units=[*old.units, *best.units], fit=best.fit)
-    return [c for c in named if c is not old] + [grown]
+    return [grown if c is old else c for c in named]
 
 
 MAX_ROUNDS = 6
@@ -290,7 +290,7 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
                 break
         if best is None:
             break
-        named, base = prune(physics, data, _merge(named, best), best.fit)
+        named, base = prune(physics, data, _merge(named, best), best.fit, best.effect)
         if len({c.effect for c in named}) > MAX_EFFECTS:
             break
         cv_base = _cv_of(physics, data, base)
