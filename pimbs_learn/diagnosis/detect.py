@@ -66,7 +66,7 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
         sizes: list[tuple[float, str]] = []
         for group in units_of(effect, data.theta.shape[1], data.tension.shape[1]):
             unit = group[0]
-            if unit in fit.units:
+            if unit in fit.units or unit.part == "common":
                 continue
             # the effect's own nuisance parts (a link mass' proximal shares) are fitted along
             extra = [_column(physics, data, fit, u, r0, sigma) for u in group[1:]

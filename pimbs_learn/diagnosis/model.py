@@ -29,7 +29,10 @@ a mass change of the links beyond joint k scales it exactly (``β = scale − 1`
 of each proximal level ``V_i`` (terms whose last joint is i < k) is not identifiable from τ
 samples and gets its own ``γ_ki``.
 
-A thermal drift is anchored where the loadcell was zeroed: it reads right at ``T0_j``, the
+A thermal drift is anchored where the loadcell was zeroed (per muscle, or one coefficient
+common to all loadcells of one type and amplifier: pooled, it is seen where per-muscle
+coefficients are too weak — four loadcell errors against two torque equations on a 2-DOF
+arm): it reads right at ``T0_j``, the
 temperature at zeroing (a metadata field, or the first samples of the session), so drift
 and a constant offset are separate effects that can be present together. A gain error
 grows with the tension, an offset does not, and a stiffness error leaves the torque
@@ -64,8 +67,10 @@ class Unit:
 
 def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
     """Groups of units that are selected together (one group per muscle/joint/subtree)."""
-    if effect in ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
-                  "elastic_stiffness"):
+    if effect == "thermal_drift":  # per muscle, or one coefficient shared by all loadcells
+        return [[Unit(effect, j)] for j in range(n_muscles)] + (
+            [[Unit(effect, -1, "common")]] if n_muscles > 1 else [])
+    if effect in ("tension_offset", "tension_gain", "tendon_friction", "elastic_stiffness"):
         return [[Unit(effect, j)] for j in range(n_muscles)]
     if effect == "joint_offset":
         return [[Unit(effect, k)] for k in range(n_joints)]
@@ -160,7 +165,8 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
         if u.effect == "tension_offset":
             f[:, u.index] -= p
         elif u.effect == "thermal_drift":
-            f[:, u.index] -= p * (data.temperature[:, u.index] - physics.temp_zero[u.index])
+            j = slice(None) if u.part == "common" else u.index
+            f[:, j] -= p * (data.temperature[:, j] - physics.temp_zero[j])
         elif u.effect == "tension_gain":
             scale[u.index] = 1.0 / (1.0 + p)
         elif u.effect == "tendon_friction":

@@ -44,6 +44,13 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
         elif cand.effect == "tension_gain":
             params[muscles[unit.index]] = {"gain": value, "se": se,
                                            "meaning": "loadcell reads (1 + gain)·f"}
+        elif cand.effect == "thermal_drift" and unit.part == "common":
+            params["all muscles (common)"] = {
+                "coefficient_N_per_C": value, "se": se,
+                "reference_temperature_C": [float(t) for t in physics.temp_zero],
+                "meaning": "every loadcell reads f + coefficient·(T − its reference); "
+                           "per-muscle entries add to it"}
+            names_m.extend(muscles)
         elif cand.effect == "thermal_drift":
             params[muscles[unit.index]] = {
                 "coefficient_N_per_C": value, "se": se,
@@ -63,7 +70,7 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
                     unit.part.removeprefix("level"))]] = value
         if cand.effect == "joint_offset":
             names_j.append(joints[unit.index])
-        elif cand.effect != "link_mass":
+        elif cand.effect != "link_mass" and unit.part != "common":
             names_m.append(muscles[unit.index])
     return params, sorted(set(names_m), key=muscles.index), sorted(set(names_j),
                                                                    key=joints.index)
