@@ -66,9 +66,16 @@ def test_drift_is_anchored_where_the_loadcell_was_zeroed(tmp_path, reference):
     record(real, 300, 3, effects=(("thermal_drift", 0.5, 0),))
     result, _ = diagnose(real, reference)
     assert [e["name"] for e in result["effects"]] == ["thermal_drift"]
-    for values in result["effects"][0]["parameters"].values():
-        assert abs(values["coefficient_N_per_C"] - 0.5) < 0.05
-        assert abs(values["reference_temperature_C"] - 22.0) < 1.5
+    params = result["effects"][0]["parameters"]
+    common = params.pop("all muscles (common)", {"coefficient_N_per_C": 0.0,
+                                                 "reference_temperature_C": [22.0]})
+    assert result["effects"][0]["muscles"] == [f"mus{j}" for j in range(6)]
+    for j in range(6):  # every loadcell: 0.5 N/°C in all, zero near 22 °C
+        own = params.get(f"mus{j}", {}).get("coefficient_N_per_C", 0.0)
+        assert abs(common["coefficient_N_per_C"] + own - 0.5) < 0.05
+    for t in common["reference_temperature_C"] + [v["reference_temperature_C"]
+                                                  for v in params.values()]:
+        assert abs(t - 22.0) < 1.5
 
 
 def test_what_no_effect_explains_is_reported_with_where(tmp_path, reference):
