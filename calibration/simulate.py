@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_calibration.arm_model import ArmModel, sample_poses
-from pimbs_calibration.effects import Effect, World
+from pimbs_calibration.effects import T_REF, Effect, World
 from pimbs_calibration.recording import make_meta
 
 ATL_F_MIN = (10.0, 300.0)  # N, the paper's range for the ATL-Map
@@ -114,5 +114,7 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
                      seed=seed, map=map_kind, generator="pimbs simulate",
                      f_min=[0.0, 0.0] if map_kind == "al" else list(ATL_F_MIN),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
-                     noise=noise, theta_source="simulation")
+                     noise=noise, theta_source="simulation",
+                     # the simulated loadcells were zeroed (read right) at T_REF
+                     loadcell_zero_temperature_C=T_REF)
     return data, meta

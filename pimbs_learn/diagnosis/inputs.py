@@ -66,8 +66,12 @@ def zero_temperature(rec: Recording) -> tuple[np.ndarray, str]:
     m = len(rec.muscles)
     value = rec.meta.get(ZERO_TEMPERATURE_KEY)
     if value is not None:
-        arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy() if np.ndim(
-            value) == 0 or len(value) == m else None
+        try:
+            arr = np.asarray(value, dtype=float)
+            arr = np.broadcast_to(arr, (m,)).copy() if arr.ndim == 0 or arr.shape == (m,) \
+                else None
+        except (TypeError, ValueError):
+            arr = None
         if arr is None or not np.all(np.isfinite(arr)):
             raise DiagnosisInputError(
                 f"{rec.path}: metadata {ZERO_TEMPERATURE_KEY} must be one number or {m} "
