@@ -29,6 +29,7 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_calibration.effects import parse_effect
+    from pimbs_calibration.poses import replaced_note
     from pimbs_calibration.recording import write_recording
     from pimbs_calibration.simulate import simulate
 
@@ -36,6 +37,8 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
     data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects, noise=noise)
     write_recording(out, data, meta)
+    if meta["replaced_poses"]:
+        click.echo(replaced_note(meta["replaced_poses"], samples, seed), err=True)
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")
