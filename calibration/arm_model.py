@@ -344,9 +344,10 @@ class ArmModel:
                                   meq=self.n_joints)[0]
         except ValueError as exc:
             bound = "" if f_max is None else f" <= {np.round(f_max, 1).tolist()} N"
+            pose = dict(zip(self.joints, np.round(theta, 4).tolist(), strict=True))
             raise InfeasiblePoseError(
                 f"{self.robot.muscle_path}: no tensions >= {np.round(f_min, 1).tolist()} N"
-                f"{bound} hold {dict(zip(self.joints, np.round(theta, 4).tolist()))} "
+                f"{bound} hold {pose} "
                 f"against gravity {np.round(g, 3).tolist()} N*m ({exc}); the muscles cannot "
                 f"hold this pose. Run `pimbs robot {self.robot.muscle_path}` to see which "
                 "joint lacks a muscle pulling it one way, or narrow that joint's range"

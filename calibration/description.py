@@ -4,8 +4,9 @@ The URDF carries what pinocchio needs (links, joints, limits, masses, inertias) 
 shipped (``urdf_model``: meshes ignored, continuous and mimic joints understood, joints the
 muscles do not drive locked); the muscle file carries what the URDF cannot say: which joints
 are actuated and in what column order, where each muscle's via points sit, its elastic
-element, its board and the board's sensor calibration. Every mistake is reported as a ``DescriptionError`` naming the file and the
-field, because a wrong description silently corrupts every recording made with it.
+element, its board and the board's sensor calibration. Every mistake is reported as a
+``DescriptionError`` naming the file and the field, because a wrong description silently
+corrupts every recording made with it.
 
 Muscle file layout (values under ``defaults`` apply to every muscle that does not set them)::
 

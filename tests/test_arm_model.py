@@ -116,7 +116,7 @@ def test_one_sided_joint_refused_at_load_naming_file_and_joint(tmp_path):
     raw["muscles"] = raw["muscles"][:3]  # m3, the only elbow extensor, removed
     path.write_text(yaml.safe_dump(raw))
     with pytest.raises(DescriptionError, match="'elbow_pitch': no muscle turns it towards "
-                       "positive") as err:
+                       "negative") as err:
         ArmModel.load(path)
     assert str(path) in str(err.value) and err.value.field == "joints[1]"
 
