@@ -215,12 +215,13 @@ class ArmModel:
         counts = [len(m.path) for m in self.robot.muscles]
         return np.split(p, np.cumsum(counts)[:-1])
 
-    def link_origins(self, theta) -> dict[str, np.ndarray]:
-        """World position (3,) of every link frame of the URDF at one pose (m)."""
+    def link_frames(self, theta) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World (rotation (3, 3), position (3,)) of every link frame of the URDF at a pose."""
         theta = np.asarray(theta, dtype=np.float64)
         with self._lock:
             pin.framesForwardKinematics(self._model, self._data, self._q(theta))
-            return {f.name: np.array(self._data.oMf[k].translation)
+            return {f.name: (np.array(self._data.oMf[k].rotation),
+                             np.array(self._data.oMf[k].translation))
                     for k, f in enumerate(self._model.frames)
                     if f.type == pin.FrameType.BODY}
 

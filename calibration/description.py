@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import importlib.resources
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -129,11 +130,14 @@ def builtin_robots() -> list[str]:
     return list(_BUILTIN)
 
 
-def load_robot(name_or_path: str | Path) -> RobotDescription:
+def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
+               ) -> RobotDescription:
     """Load a built-in robot by name, or a description from a path to its ``.muscles.yaml``.
 
     Built-ins are read through ``importlib.resources`` so an installed (non-editable) package
-    finds them. Raises ``DescriptionError`` for any broken or unknown description.
+    finds them. ``package_path``: directories searched first for a ``urdf: package://...``
+    (then the muscle file's ``package_path``, then ``ROS_PACKAGE_PATH``). Raises
+    ``DescriptionError`` for any broken or unknown description.
     """
     text = str(name_or_path)
     if text in _BUILTIN and not Path(text).exists():
@@ -147,10 +151,10 @@ def load_robot(name_or_path: str | Path) -> RobotDescription:
             path, "robot", "no such built-in robot or muscle file",
             f"Use one of {', '.join(_BUILTIN)} or a path to a *{MUSCLE_SUFFIX} file",
         )
-    return _load_file(path)
+    return _load_file(path, package_path)
 
 
-def _load_file(path: Path) -> RobotDescription:
+def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescription:
     try:
         raw = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
@@ -160,7 +164,7 @@ def _load_file(path: Path) -> RobotDescription:
         raise DescriptionError(path, "<file>", "top level is not a mapping",
                                "Write robot, urdf, joints, joint_encoders and muscles keys")
     name = _require(raw, "robot", str, path, "robot")
-    urdf_path = _urdf_path(raw, path)
+    urdf_path = _urdf_path(raw, path, package_path)
     text, urdf_joints = _read_urdf(urdf_path, path)
     joints, joint_range = _parse_joints(raw, urdf_joints, path)
     lock = _parse_lock(raw, urdf_joints, joints, path)
@@ -180,7 +184,7 @@ def reduced_model(robot: RobotDescription) -> ReducedModel:
     return reduce(robot.urdf_path.read_text(), robot.joints, dict(robot.locked))
 
 
-def _urdf_path(raw: dict, path: Path) -> Path:
+def _urdf_path(raw: dict, path: Path, package_path: Sequence[Path]) -> Path:
     """``urdf``: relative to the muscle file, absolute, or ``package://pkg/file``."""
     url = _require(raw, "urdf", str, path, "urdf")
     if url.startswith("file://"):
@@ -193,7 +197,7 @@ def _urdf_path(raw: dict, path: Path) -> Path:
     if not isinstance(extra, list) or not all(isinstance(p, str) for p in extra):
         raise DescriptionError(path, "package_path", f"expected a list of directories, got "
                                f"{extra!r}", "Write 'package_path: [dir, ...]'")
-    search = [path.parent / p for p in extra] + ros_package_path()
+    search = [*package_path, *(path.parent / p for p in extra), *ros_package_path()]
     return resolve_package_url(url, search, path)  # UrdfError names the file and the fix
 
 

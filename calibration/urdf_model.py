@@ -102,6 +102,27 @@ def parse_joints(urdf_path: Path, text: str) -> dict[str, UrdfJoint]:
     return joints
 
 
+def link_masses(text: str) -> dict[str, float]:
+    """Mass (kg) of every link that declares one."""
+    masses = {}
+    for link in ET.fromstring(text).findall("link"):
+        mass = link.find("inertial/mass")
+        if mass is not None:
+            masses[link.get("name", "")] = float(mass.get("value", 0.0))
+    return masses
+
+
+def link_centres(text: str) -> dict[str, np.ndarray]:
+    """Centre of mass (3,) of every link that declares an inertial origin, in its frame."""
+    centres = {}
+    for link in ET.fromstring(text).findall("link"):
+        origin = link.find("inertial/origin")
+        if origin is not None:
+            centres[link.get("name", "")] = np.array(
+                [float(v) for v in origin.get("xyz", "0 0 0").split()])
+    return centres
+
+
 def prepared_xml(text: str) -> str:
     """The URDF pinocchio reads: no geometry, continuous joints as unlimited revolute ones,
     mimic tags removed (``reduce`` resolves them)."""
