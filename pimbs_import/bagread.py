@@ -1,0 +1,146 @@
+"""Time series of the mapped quantities, read from a ROS 1 ``.bag`` or a ROS 2 bag directory.
+
+``rosbags`` reads both (sqlite3 and mcap storage) without a ROS installation. Each topic is
+deserialized once however many quantities it carries; element names are resolved once per
+distinct name list (a JointState publisher sends the same list every time).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pimbs_import.mapping import Channel, LogMapping, MappingError, normalize_type
+
+
+class LogError(ValueError):
+    """The log cannot be imported as mapped; the message names the log, topic and fix."""
+
+
+@dataclass
+class Series:
+    """One quantity: times (ns, increasing) and values (T, K) in the robot's order."""
+
+    time: np.ndarray
+    values: np.ndarray
+
+
+def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: Sequence[str],
+                progress: Callable[[int, int], None] | None = None) -> dict[str, Series]:
+    """Series for every mapped quantity (absent optional ones left out)."""
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
+
+    paths = [log]
+    try:
+        reader = AnyReader(paths, default_typestore=get_typestore(Stores.LATEST))
+        reader.open()
+    except (AnyReaderError, FileNotFoundError) as exc:
+        raise LogError(f"{log}: cannot open as a ROS 1 .bag or a ROS 2 bag directory ({exc}); "
+                       "give a .bag file or the directory holding metadata.yaml") from exc
+    try:
+        topics = reader.topics
+        wanted = {q: ch for q, ch in mapping.channels.items() if ch is not None}
+        for q, ch in list(wanted.items()):
+            if ch.topic not in topics:
+                if q == "temperature":
+                    del wanted[q]
+                    continue
+                have = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items()))
+                raise LogError(f"{log}: no topic {ch.topic} for {q} (the log has: {have}); "
+                               f"record it, or map {q} to another topic with --map")
+            found = normalize_type(topics[ch.topic].msgtype or "")
+            if found != ch.type:
+                raise LogError(f"{log}: topic {ch.topic} ({q}) has type {found}, expected "
+                               f"{ch.type}; map {q} with --map (type, field) to read it")
+        by_topic: dict[str, list[tuple[str, Channel]]] = {}
+        for q, ch in wanted.items():
+            by_topic.setdefault(ch.topic, []).append((q, ch))
+        conns = [c for c in reader.connections if c.topic in by_topic]
+        total = sum(topics[t].msgcount for t in by_topic)
+        names = {"theta": joints, "length": muscles, "tension": muscles, "temperature": muscles}
+        pickers = {q: _Picker(log, q, ch, names[q]) for q, ch in wanted.items()}
+        times: dict[str, list[int]] = {q: [] for q in wanted}
+        rows: dict[str, list[np.ndarray]] = {q: [] for q in wanted}
+        for n, (conn, stamp, raw) in enumerate(reader.messages(connections=conns)):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = stamp if mapping.clock == "log" else _header_time(log, conn.topic, msg)
+            for q, _ in by_topic[conn.topic]:
+                value = pickers[q].pick(msg)
+                if value is not None:
+                    times[q].append(t)
+                    rows[q].append(value)
+            if progress is not None and n % 20000 == 0:
+                progress(n, total)
+        if progress is not None:
+            progress(total, total)
+    finally:
+        reader.close()
+    out = {}
+    for q in wanted:
+        if not rows[q]:
+            raise LogError(f"{log}: topic {wanted[q].topic} has no message for {q}")
+        t = np.asarray(times[q], dtype=np.int64)
+        order = np.argsort(t, kind="stable")
+        out[q] = Series(time=t[order], values=pickers[q].scaled(np.stack(rows[q])[order]))
+    return out
+
+
+def _header_time(log: Path, topic: str, msg: object) -> int:
+    header = getattr(msg, "header", None)
+    if header is None:
+        raise LogError(f"{log}: topic {topic} has no header; use 'clock: log' in the mapping")
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+class _Picker:
+    """Extracts one quantity's values, in the robot's order, from messages of one topic."""
+
+    def __init__(self, log: Path, quantity: str, ch: Channel, wanted: Sequence[str]) -> None:
+        self.log, self.quantity, self.ch, self.wanted = log, quantity, ch, list(wanted)
+        self._cache: tuple[tuple[str, ...], np.ndarray] | None = None
+        if ch.names is None:
+            order = list(ch.order) if ch.order else self.wanted
+            self._fixed = self._index([ch.rename.get(n, n) for n in order], "order")
+
+    def _index(self, names: list[str], where: str) -> np.ndarray:
+        missing = [n for n in self.wanted if n not in names]
+        if missing:
+            raise LogError(
+                f"{self.log}: topic {self.ch.topic} ({self.quantity}) has no element(s) "
+                f"{missing} of the robot in its {where} {names}; the robot has "
+                f"{self.wanted}. Map log names to the robot's with --map "
+                f"({self.quantity}: rename: {{log_name: robot_name}})")
+        return np.array([names.index(n) for n in self.wanted])
+
+    def pick(self, msg: object) -> np.ndarray | None:
+        try:
+            data = np.asarray(getattr(msg, self.ch.field), dtype=np.float64)
+        except AttributeError:
+            raise LogError(f"{self.log}: topic {self.ch.topic} has no field "
+                           f"'{self.ch.field}' for {self.quantity}; set field in --map"
+                           ) from None
+        if self.ch.names is None:
+            index = self._fixed
+        else:
+            names = tuple(getattr(msg, self.ch.names))
+            if self._cache is None or self._cache[0] != names:
+                renamed = [self.ch.rename.get(n, n) for n in names]
+                self._cache = (names, self._index(renamed, f"'{self.ch.names}'"))
+            index = self._cache[1]
+        if len(data) <= index.max():
+            return None  # e.g. a JointState without efforts: not a reading of this quantity
+        return data[index]
+
+    def scaled(self, values: np.ndarray) -> np.ndarray:
+        scale, offset = (np.asarray(v, dtype=np.float64) for v in (self.ch.scale,
+                                                                   self.ch.offset))
+        for name, v in (("scale", scale), ("offset", offset)):
+            if v.ndim and v.shape != (values.shape[1],):
+                raise MappingError(f"{self.quantity}.{name}: {v.size} values for "
+                                   f"{values.shape[1]} elements; give one per element in the "
+                                   "robot's order, or a single number")
+        return values * scale + offset
