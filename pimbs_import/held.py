@@ -68,11 +68,12 @@ def align(series: dict[str, Series], log: str) -> Aligned:
 def quiet(a: Aligned, rule: SettleRule) -> np.ndarray:
     """(T,) bool: the trailing window ending at each reading is at rest."""
     t = (a.time - a.time[0]) * 1e-9
-    start = np.searchsorted(t, t - rule.window, side="left")
+    # the window reaches back to the last reading at or before its start (as the detector's)
+    start = np.maximum(np.searchsorted(t, t - rule.window, side="right") - 1, 0)
     end = np.arange(len(t)) + 1
     count = end - start
     mid = start + count // 2
-    ok = (count >= max(int(rule.min_readings), 2)) & (t - t[start] >= 0.999 * rule.window)
+    ok = (count >= max(int(rule.min_readings), 2)) & (t - t[start] >= rule.window)
     for values, tol in ((a.theta, rule.theta_tol), (a.length, rule.length_tol),
                         (a.tension, rule.tension_tol)):
         c = np.vstack([np.zeros(values.shape[1]), np.cumsum(values - values[0], axis=0)])
@@ -96,6 +97,10 @@ def held_poses(a: Aligned, rule: SettleRule) -> list[HeldPose]:
     t = a.time * 1e-9
     # the quiet flag of the first reading covers the window before it: the hold began then
     held = [r for r in merged if t[r[1]] - t[r[0]] + rule.window >= rule.min_hold]
+    # a motion is seen only once it has moved by a tolerance, up to a window after it began:
+    # the last window of a stretch is not part of the held pose
+    for r in held:
+        r[1] = max(r[0], int(np.searchsorted(t, t[r[1]] - rule.window, side="right")) - 1)
     return _with_approach(a, held)
 
 

@@ -33,6 +33,8 @@ class LogSpec:
     noise: SensorNoise = SensorNoise()
     extra_joints: tuple[str, ...] = ("head_pan", "r_elbow")
     temperature: bool = True
+    length_unit: float = 1.0  # published length = this * (length + length_zero): mm -> 1000
+    length_zero: float = 0.0  # m: the motor encoder's zero is not the model's
     seed: int = 0
     start_ns: int = 1_760_000_000_000_000_000
 
@@ -72,6 +74,7 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
         knots_t.append(t)
         knots.append(knots[-1])
     end = t + 0.5
+    windows[-1] = (windows[-1][0], end)  # the arm rests in its last pose until the log ends
     knot_t = np.array(knots_t)
 
     def state(times: np.ndarray, which: int) -> np.ndarray:
@@ -110,7 +113,8 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
     for tt, f, ln in zip(times, tension, length, strict=True):
         recv = _ns(spec.start_ns, tt + rng.uniform(0, 2e-3))
         messages.append((recv, "/muscle_states", "sensor_msgs/msg/JointState", JointState(
-            header=header(recv), name=list(arm.muscles), position=ln,
+            header=header(recv), name=list(arm.muscles),
+            position=spec.length_unit * (ln + spec.length_zero),
             velocity=np.zeros(0), effort=f)))
     if spec.temperature:
         times = np.arange(0.007, end, 1 / spec.rates["temperature"])

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,8 @@ from pimbs_calibration.recording import read_recording
 from pimbs_calibration.simulate import simulate
 from pimbs_cli.main import main
 from pimbs_hw.collection.plan import CollectionPlan
+from pimbs_hw.collection.session import stop_advice
+from pimbs_hw.safety import TensionLimit
 
 ACME = Path(__file__).resolve().parents[1] / "fixtures" / "foreign_arm" / \
     "acme_left_arm.muscles.yaml"
@@ -99,3 +102,18 @@ def test_foreign_arm_simulates_collects_on_the_mock_bus_and_is_diagnosed(tmp_pat
     assert res.exit_code == 0, res.output
     named = res.output.split("Missing physics")[1]
     assert "1. joint_offset (l_elbow_pitch)" in named
+
+
+def test_ceiling_stop_names_the_pose_and_whether_the_plan_needed_it(acme):
+    plan = CollectionPlan(acme, 5, seed=1)
+    stop = TensionLimit("board tension ceiling reached; the board relaxed", muscle="el_flexor",
+                        board_id=15, port="virtual")
+    text = stop_advice(stop, plan, 3)
+    pose = f"l_elbow_pitch={plan.poses[3][2]:.3f}"
+    assert "sample 3" in text and pose in text and "el_flexor" in text
+    assert "did not need that tension" in text and "snag" in text and "--resume" in text
+    weak = copy.copy(acme)
+    weak.f_max = np.full(acme.n_muscles, 1.0)  # a wire that cannot carry what the plan asks
+    plan.model = weak
+    text = stop_advice(stop, plan, 3)
+    assert "needed that tension (an infeasible pose)" in text and "pimbs robot" in text
