@@ -1,8 +1,9 @@
 """Time series of the mapped quantities, read from a ROS 1 ``.bag`` or a ROS 2 bag directory.
 
 ``rosbags`` reads both (sqlite3 and mcap storage) without a ROS installation. Each topic is
-deserialized once however many quantities it carries; element names are resolved once per
-distinct name list (a JointState publisher sends the same list every time).
+deserialized once however many quantities it carries (the convention's two message types by
+``fastdecode``, others by ``rosbags``); element names are resolved once per distinct name list
+(a JointState publisher sends the same list every time).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pimbs_import.fastdecode import FastDecoder
 from pimbs_import.mapping import Channel, LogMapping, MappingError, normalize_type
 
 
@@ -63,18 +65,43 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
         total = sum(topics[t].msgcount for t in by_topic)
         names = {"theta": joints, "length": muscles, "tension": muscles, "temperature": muscles}
         pickers = {q: _Picker(log, q, ch, names[q]) for q, ch in wanted.items()}
-        times: dict[str, list[int]] = {q: [] for q in wanted}
+        times: dict[str, list[np.ndarray]] = {q: [] for q in wanted}
         rows: dict[str, list[np.ndarray]] = {q: [] for q in wanted}
+        fast = FastDecoder()
+        # the convention's types are kept raw and decoded in bulk after the pass
+        raw_topics = {t for t in by_topic if fast.supports(normalize_type(
+            topics[t].msgtype or ""))}
+        kept: dict[str, tuple[list[int], list[bytes]]] = {t: ([], []) for t in raw_topics}
         for n, (conn, stamp, raw) in enumerate(reader.messages(connections=conns)):
-            msg = reader.deserialize(raw, conn.msgtype)
-            t = stamp if mapping.clock == "log" else _header_time(log, conn.topic, msg)
-            for q, _ in by_topic[conn.topic]:
-                value = pickers[q].pick(msg)
-                if value is not None:
-                    times[q].append(t)
-                    rows[q].append(value)
+            if conn.topic in kept:
+                kept[conn.topic][0].append(stamp)
+                kept[conn.topic][1].append(bytes(raw))
+            else:
+                msg = reader.deserialize(raw, conn.msgtype)
+                t = stamp if mapping.clock == "log" else _header_time(log, conn.topic, msg)
+                for q, _ in by_topic[conn.topic]:
+                    value = pickers[q].pick(msg)
+                    if value is not None:
+                        times[q].append(np.array([t]))
+                        rows[q].append(value[None])
             if progress is not None and n % 20000 == 0:
                 progress(n, total)
+        for topic, (stamps, raws) in kept.items():
+            stamps_ns = np.asarray(stamps, dtype=np.int64)
+            msgtype = normalize_type(topics[topic].msgtype or "")
+            for batch in fast.decode_many(raws, msgtype, reader.is2):
+                if mapping.clock == "log":
+                    t = stamps_ns[batch.rows]
+                elif batch.stamp_ns is None:
+                    raise LogError(f"{log}: topic {topic} has no header; use 'clock: log' in "
+                                   "the mapping")
+                else:
+                    t = batch.stamp_ns
+                for q, _ in by_topic[topic]:
+                    values = pickers[q].pick_many(batch.name, batch.fields)
+                    if values is not None:
+                        times[q].append(t)
+                        rows[q].append(values)
         if progress is not None:
             progress(total, total)
     finally:
@@ -83,9 +110,10 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
     for q in wanted:
         if not rows[q]:
             raise LogError(f"{log}: topic {wanted[q].topic} has no message for {q}")
-        t = np.asarray(times[q], dtype=np.int64)
+        t = np.concatenate(times[q])
         order = np.argsort(t, kind="stable")
-        out[q] = Series(time=t[order], values=pickers[q].scaled(np.stack(rows[q])[order]))
+        out[q] = Series(time=t[order],
+                        values=pickers[q].scaled(np.concatenate(rows[q])[order]))
     return out
 
 
@@ -101,10 +129,11 @@ class _Picker:
 
     def __init__(self, log: Path, quantity: str, ch: Channel, wanted: Sequence[str]) -> None:
         self.log, self.quantity, self.ch, self.wanted = log, quantity, ch, list(wanted)
-        self._cache: tuple[tuple[str, ...], np.ndarray] | None = None
+        self._cache: tuple[tuple[str, ...], np.ndarray, int] | None = None
         if ch.names is None:
             order = list(ch.order) if ch.order else self.wanted
             self._fixed = self._index([ch.rename.get(n, n) for n in order], "order")
+            self._needed = int(self._fixed.max()) + 1
 
     def _index(self, names: list[str], where: str) -> np.ndarray:
         missing = [n for n in self.wanted if n not in names]
@@ -117,23 +146,41 @@ class _Picker:
         return np.array([names.index(n) for n in self.wanted])
 
     def pick(self, msg: object) -> np.ndarray | None:
+        """Values of one message (rosbags-deserialized), or None if it has none."""
         try:
             data = np.asarray(getattr(msg, self.ch.field), dtype=np.float64)
         except AttributeError:
-            raise LogError(f"{self.log}: topic {self.ch.topic} has no field "
-                           f"'{self.ch.field}' for {self.quantity}; set field in --map"
-                           ) from None
-        if self.ch.names is None:
-            index = self._fixed
-        else:
-            names = tuple(getattr(msg, self.ch.names))
-            if self._cache is None or self._cache[0] != names:
-                renamed = [self.ch.rename.get(n, n) for n in names]
-                self._cache = (names, self._index(renamed, f"'{self.ch.names}'"))
-            index = self._cache[1]
-        if len(data) <= index.max():
-            return None  # e.g. a JointState without efforts: not a reading of this quantity
-        return data[index]
+            raise self._no_field() from None
+        names = None if self.ch.names is None else getattr(msg, self.ch.names)
+        index, needed = self._index_of(names)
+        return None if len(data) < needed else data[index]
+
+    def pick_many(self, names: tuple[str, ...], fields: dict[str, np.ndarray]
+                  ) -> np.ndarray | None:
+        """(n, K) values of a batch of messages of one layout, or None if they have none."""
+        if self.ch.field not in fields:
+            raise self._no_field()
+        if self.ch.names not in (None, "name"):
+            raise LogError(f"{self.log}: topic {self.ch.topic}: names field "
+                           f"'{self.ch.names}' is not in this message type; use 'name'")
+        data = fields[self.ch.field]
+        index, needed = self._index_of(None if self.ch.names is None else names)
+        return None if data.shape[1] < needed else data[:, index]
+
+    def _index_of(self, names) -> tuple[np.ndarray, int]:
+        """Index of the robot's elements in a message's array, and the length it needs."""
+        if names is None:
+            return self._fixed, self._needed
+        if self._cache is None or (self._cache[0] is not names
+                                   and self._cache[0] != tuple(names)):
+            renamed = [self.ch.rename.get(n, n) for n in names]
+            index = self._index(renamed, f"'{self.ch.names}'")
+            self._cache = (tuple(names), index, int(index.max()) + 1)
+        return self._cache[1], self._cache[2]
+
+    def _no_field(self) -> LogError:
+        return LogError(f"{self.log}: topic {self.ch.topic} has no field '{self.ch.field}' "
+                        f"for {self.quantity}; set field in --map")
 
     def scaled(self, values: np.ndarray) -> np.ndarray:
         scale, offset = (np.asarray(v, dtype=np.float64) for v in (self.ch.scale,

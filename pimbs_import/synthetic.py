@@ -10,6 +10,7 @@ held values, so an import can be checked row by row.
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -96,35 +97,39 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
         return (Header(seq=0, stamp=stamp(ns), frame_id="") if fmt == "ros1"
                 else Header(stamp=stamp(ns), frame_id=""))
 
-    messages: list[tuple[int, str, str, object]] = []
     s = spec.noise
     jnames = [spec.extra_joints[0], *reversed(arm.joints), *spec.extra_joints[1:]]
-    times = np.arange(0.0, end, 1 / spec.rates["joints"])
-    theta = state(times, 0) + rng.normal(0, s.theta, (len(times), arm.n_joints))
-    for tt, th in zip(times, theta, strict=True):
-        recv = _ns(spec.start_ns, tt + rng.uniform(0, 2e-3))
-        pos = [0.1, *th[::-1], -0.2]
-        messages.append((recv, "/joint_states", "sensor_msgs/msg/JointState", JointState(
-            header=header(_ns(spec.start_ns, tt + spec.header_offset_s)), name=jnames,
-            position=np.array(pos), velocity=np.zeros(0), effort=np.zeros(0))))
-    times = np.arange(0.003, end, 1 / spec.rates["muscles"])
-    tension = state(times, 1) + rng.normal(0, s.tension, (len(times), arm.n_muscles))
-    length = state(times, 2) + rng.normal(0, s.length, (len(times), arm.n_muscles))
-    for tt, f, ln in zip(times, tension, length, strict=True):
-        recv = _ns(spec.start_ns, tt + rng.uniform(0, 2e-3))
-        messages.append((recv, "/muscle_states", "sensor_msgs/msg/JointState", JointState(
-            header=header(recv), name=list(arm.muscles),
-            position=spec.length_unit * (ln + spec.length_zero),
-            velocity=np.zeros(0), effort=f)))
-    if spec.temperature:
-        times = np.arange(0.007, end, 1 / spec.rates["temperature"])
-        for tt in times:
+
+    def joint_states():
+        times = np.arange(0.0, end, 1 / spec.rates["joints"])
+        theta = state(times, 0) + rng.normal(0, s.theta, (len(times), arm.n_joints))
+        for tt, th in zip(times, theta, strict=True):
+            yield (_ns(spec.start_ns, tt + rng.uniform(0, 2e-3)), "/joint_states",
+                   "sensor_msgs/msg/JointState", JointState(
+                       header=header(_ns(spec.start_ns, tt + spec.header_offset_s)),
+                       name=jnames, position=np.array([0.1, *th[::-1], -0.2]),
+                       velocity=np.zeros(0), effort=np.zeros(0)))
+
+    def muscle_states():
+        times = np.arange(0.003, end, 1 / spec.rates["muscles"])
+        tension = state(times, 1) + rng.normal(0, s.tension, (len(times), arm.n_muscles))
+        length = state(times, 2) + rng.normal(0, s.length, (len(times), arm.n_muscles))
+        for tt, f, ln in zip(times, tension, length, strict=True):
+            recv = _ns(spec.start_ns, tt + rng.uniform(0, 2e-3))
+            yield (recv, "/muscle_states", "sensor_msgs/msg/JointState", JointState(
+                header=header(recv), name=list(arm.muscles),
+                position=spec.length_unit * (ln + spec.length_zero),
+                velocity=np.zeros(0), effort=f))
+
+    def temperatures():
+        for tt in np.arange(0.007, end, 1 / spec.rates["temperature"]):
             temp = 30.0 + 0.01 * tt + rng.normal(0, s.temperature, arm.n_muscles)
-            messages.append((_ns(spec.start_ns, tt), "/muscle_temperature",
-                             "std_msgs/msg/Float64MultiArray",
-                             Arr(layout=Layout(dim=[], data_offset=0), data=temp)))
-    messages.sort(key=lambda m: m[0])
-    _write(path, fmt, store, messages)
+            yield (_ns(spec.start_ns, tt), "/muscle_temperature",
+                   "std_msgs/msg/Float64MultiArray",
+                   Arr(layout=Layout(dim=[], data_offset=0), data=temp))
+
+    streams = [joint_states(), muscle_states()] + ([temperatures()] if spec.temperature else [])
+    _write(path, fmt, store, heapq.merge(*streams, key=lambda m: m[0]))
     return Truth(theta=theta_hold, tension=tension_hold, length=length_hold,
                  hold_windows=[(_ns(spec.start_ns, a), _ns(spec.start_ns, b))
                                for a, b in windows])
