@@ -157,3 +157,28 @@ def _write(path: Path, fmt: str, store, messages) -> None:
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(conns[topic], recv, serialize(msg, msgtype))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m pimbs_import.synthetic OUT [--robot R] [--poses N] [--format F]``: a demo
+    log to try ``pimbs import`` without a lab's bag."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--robot", default="two-link-4-muscle")
+    parser.add_argument("--poses", type=int, default=60)
+    parser.add_argument("--format", default="ros1", choices=FORMATS)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.out.exists():
+        parser.error(f"{args.out} exists; choose another path")
+    spec = LogSpec(poses=args.poses, seed=args.seed)
+    write_log(args.out, ArmModel.load(args.robot), spec, args.format)
+    span = 0.5 + args.poses * (spec.ramp_s + spec.hold_s) + 0.5
+    print(f"wrote {args.out}: {args.format} log of {args.robot}, {args.poses} held poses, "
+          f"{span:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
