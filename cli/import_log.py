@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from pimbs_cli.common import LogProgress, check_output, force_option, robot_option, user_errors
+from pimbs_cli.common import check_output, force_option, progress, robot_option, user_errors
 
 
 @click.command("import")
@@ -35,27 +34,9 @@ def command(log: Path, robot: str | None, out: Path, map_path: Path | None,
     check_output(out, force=force, what="recording")
     arm = ArmModel.load(robot)
     mapping = load_mapping(map_path)
-    progress = None
-    if not sys.stderr.isatty():
-        log_progress = LogProgress(f"reading {log.name}", None, "messages")
-
-        def progress(done: int, total: int) -> None:
-            log_progress.total = total
-            log_progress.update(done, final=done >= total)
-    else:
-        from rich.progress import Progress
-
-        bar = Progress(transient=True)
-        task = bar.add_task(f"reading {log.name}", total=None)
-        bar.start()
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-    try:
-        data, meta = import_log(log, arm, mapping, progress)
-    finally:
-        if sys.stderr.isatty():
-            bar.stop()
+    with progress(f"reading {log.name}", None, "messages") as update:
+        data, meta = import_log(log, arm, mapping,
+                                lambda done, total: update(done, f"of {total}"))
     write_recording(out, data, meta)
     click.echo(f"wrote {out}: {len(data['sample'])} held poses of {arm.robot.name} from "
                f"{log.name} ({meta['log_span_s']:.0f} s of log); temperature: "
