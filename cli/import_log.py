@@ -21,8 +21,9 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 @user_errors
 def command(log: Path, robot: str | None, out: Path, map_path: Path | None,
             force: bool) -> None:
-    """Turn LOG, a continuous log of the arm moving between held poses, into a recording
-    with one row per held pose (ramps dropped), ready for train and diagnose."""
+    """Turn LOG (a ROS 1 .bag file or a ROS 2 bag directory), a continuous log of the arm
+    moving between held poses, into a recording with one row per held pose (ramps dropped),
+    ready for train and diagnose."""
     if robot is None:
         raise click.UsageError("--robot is required: the log's joints and muscles are matched "
                                "to it by name")

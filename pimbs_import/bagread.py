@@ -24,7 +24,8 @@ class LogError(ValueError):
 
 @dataclass
 class Series:
-    """One quantity: times (ns, increasing) and values (T, K) in the robot's order."""
+    """One quantity: times (ns, increasing) and values (T, K) in the robot's order (NaN
+    where a message did not carry that element)."""
 
     time: np.ndarray
     values: np.ndarray
@@ -108,6 +109,9 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
         reader.close()
     out = {}
     for q in wanted:
+        if pickers[q].missing():
+            raise LogError(pickers[q].missing_message(
+                pickers[q].missing(), f"'{wanted[q].names}' ({sorted(pickers[q].seen)})"))
         if not rows[q]:
             raise LogError(f"{log}: topic {wanted[q].topic} has no message for {q}")
         t = np.concatenate(times[q])
@@ -125,25 +129,41 @@ def _header_time(log: Path, topic: str, msg: object) -> int:
 
 
 class _Picker:
-    """Extracts one quantity's values, in the robot's order, from messages of one topic."""
+    """Extracts one quantity's values, in the robot's order, from messages of one topic.
+
+    A message may carry only some of the robot's elements (two publishers on one
+    ``/joint_states``, one per limb); the others read NaN and ``align`` interpolates each
+    element from the messages that carry it. Only an element no message carries is an error.
+    """
 
     def __init__(self, log: Path, quantity: str, ch: Channel, wanted: Sequence[str]) -> None:
         self.log, self.quantity, self.ch, self.wanted = log, quantity, ch, list(wanted)
-        self._cache: tuple[tuple[str, ...], np.ndarray, int] | None = None
+        self._cache: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, int]] = {}
+        self._last: tuple[tuple[str, ...] | None, tuple] = (None, ())
+        self.seen: set[str] = set()  # element names met (after rename)
         if ch.names is None:
-            order = list(ch.order) if ch.order else self.wanted
-            self._fixed = self._index([ch.rename.get(n, n) for n in order], "order")
-            self._needed = int(self._fixed.max()) + 1
+            order = [ch.rename.get(n, n) for n in (ch.order or self.wanted)]
+            self._fixed = self._match(order)
+            missing = [n for n in self.wanted if n not in order]
+            if missing:
+                raise LogError(self.missing_message(missing, f"order {order}"))
 
-    def _index(self, names: list[str], where: str) -> np.ndarray:
-        missing = [n for n in self.wanted if n not in names]
-        if missing:
-            raise LogError(
-                f"{self.log}: topic {self.ch.topic} ({self.quantity}) has no element(s) "
-                f"{missing} of the robot in its {where} {names}; the robot has "
-                f"{self.wanted}. Map log names to the robot's with --map "
-                f"({self.quantity}: rename: {{log_name: robot_name}})")
-        return np.array([names.index(n) for n in self.wanted])
+    def _match(self, names: list[str]) -> tuple[np.ndarray, np.ndarray, int]:
+        """(source index, robot index, message length needed) of the robot's elements."""
+        self.seen.update(names)
+        pairs = [(names.index(n), k) for k, n in enumerate(self.wanted) if n in names]
+        src = np.array([p[0] for p in pairs], dtype=np.int64)
+        dst = np.array([p[1] for p in pairs], dtype=np.int64)
+        return src, dst, (int(src.max()) + 1 if len(src) else 0)
+
+    def missing_message(self, missing: list[str], where: str) -> str:
+        return (f"{self.log}: topic {self.ch.topic} ({self.quantity}) has no element(s) "
+                f"{missing} of the robot in its {where}; the robot has {self.wanted}. Map "
+                f"log names to the robot's with --map ({self.quantity}: rename: "
+                "{log_name: robot_name})")
+
+    def missing(self) -> list[str]:
+        return [n for n in self.wanted if n not in self.seen]
 
     def pick(self, msg: object) -> np.ndarray | None:
         """Values of one message (rosbags-deserialized), or None if it has none."""
@@ -152,31 +172,40 @@ class _Picker:
         except AttributeError:
             raise self._no_field() from None
         names = None if self.ch.names is None else getattr(msg, self.ch.names)
-        index, needed = self._index_of(names)
-        return None if len(data) < needed else data[index]
+        out = self.pick_many(names, {self.ch.field: data[None]}, check=False)
+        return None if out is None else out[0]
 
-    def pick_many(self, names: tuple[str, ...], fields: dict[str, np.ndarray]
-                  ) -> np.ndarray | None:
-        """(n, K) values of a batch of messages of one layout, or None if they have none."""
+    def pick_many(self, names: tuple[str, ...] | None, fields: dict[str, np.ndarray],
+                  check: bool = True) -> np.ndarray | None:
+        """(n, K) values of messages of one layout (NaN for elements they do not carry), or
+        None if they carry none of the robot's."""
         if self.ch.field not in fields:
             raise self._no_field()
-        if self.ch.names not in (None, "name"):
+        if check and self.ch.names not in (None, "name"):
             raise LogError(f"{self.log}: topic {self.ch.topic}: names field "
                            f"'{self.ch.names}' is not in this message type; use 'name'")
         data = fields[self.ch.field]
-        index, needed = self._index_of(None if self.ch.names is None else names)
-        return None if data.shape[1] < needed else data[:, index]
+        src, dst, needed = self._index_of(None if self.ch.names is None else names)
+        if not len(src) or data.shape[1] < needed:
+            return None  # e.g. a JointState without efforts, or another limb's publisher
+        if len(dst) == len(self.wanted):
+            return data[:, src]
+        out = np.full((len(data), len(self.wanted)), np.nan)
+        out[:, dst] = data[:, src]
+        return out
 
-    def _index_of(self, names) -> tuple[np.ndarray, int]:
-        """Index of the robot's elements in a message's array, and the length it needs."""
+    def _index_of(self, names) -> tuple[np.ndarray, np.ndarray, int]:
         if names is None:
-            return self._fixed, self._needed
-        if self._cache is None or (self._cache[0] is not names
-                                   and self._cache[0] != tuple(names)):
-            renamed = [self.ch.rename.get(n, n) for n in names]
-            index = self._index(renamed, f"'{self.ch.names}'")
-            self._cache = (tuple(names), index, int(index.max()) + 1)
-        return self._cache[1], self._cache[2]
+            return self._fixed
+        key, found = self._last
+        if key is not names:
+            key = tuple(names)
+            found = self._cache.get(key)
+            if found is None:
+                found = self._cache[key] = self._match([self.ch.rename.get(n, n)
+                                                        for n in key])
+            self._last = (names, found)
+        return found
 
     def _no_field(self) -> LogError:
         return LogError(f"{self.log}: topic {self.ch.topic} has no field '{self.ch.field}' "

@@ -40,11 +40,15 @@ class HeldPose:
 
 
 def align(series: dict[str, Series], log: str) -> Aligned:
-    """Every quantity at the tension readings' times, inside the span all of them cover."""
+    """Every quantity at the tension readings' times, inside the span all of them cover.
+
+    Each element is interpolated from the messages that carry it (NaN elsewhere), so topics
+    split over several publishers align too.
+    """
     base = series["tension"]
-    lo = max(s.time[0] for s in series.values())
-    hi = min(s.time[-1] for s in series.values())
-    keep = (base.time >= lo) & (base.time <= hi)
+    spans = [_finite_span(s) for s in series.values()]
+    lo, hi = max(a for a, _ in spans), min(b for _, b in spans)
+    keep = (base.time >= lo) & (base.time <= hi) & np.isfinite(base.values).any(axis=1)
     if keep.sum() < 2:
         raise LogError(f"{log}: the topics do not overlap in time (each covers a different "
                        "part of the log), so no reading has all quantities; check the "
@@ -55,14 +59,25 @@ def align(series: dict[str, Series], log: str) -> Aligned:
         s = series.get(q)
         if s is None:
             return None
-        if s is base or np.array_equal(s.time, base.time):
+        if (s is base or np.array_equal(s.time, base.time)) and np.isfinite(s.values).all():
             return s.values[keep]
-        x = (s.time - lo).astype(np.float64)
-        return np.stack([np.interp((t - lo).astype(np.float64), x, s.values[:, k])
-                         for k in range(s.values.shape[1])], axis=1)
+        columns = []
+        for k in range(s.values.shape[1]):
+            ok = np.isfinite(s.values[:, k])
+            columns.append(np.interp((t - lo).astype(np.float64),
+                                     (s.time[ok] - lo).astype(np.float64), s.values[ok, k]))
+        return np.stack(columns, axis=1)
 
-    return Aligned(time=t, theta=at("theta"), length=at("length"), tension=base.values[keep],
+    return Aligned(time=t, theta=at("theta"), length=at("length"), tension=at("tension"),
                    temperature=at("temperature"))
+
+
+def _finite_span(s: Series) -> tuple[int, int]:
+    """First and last time at which every element has been seen."""
+    ok = np.isfinite(s.values)
+    firsts = [s.time[np.argmax(ok[:, k])] for k in range(ok.shape[1])]
+    lasts = [s.time[len(ok) - 1 - np.argmax(ok[::-1, k])] for k in range(ok.shape[1])]
+    return max(firsts), min(lasts)
 
 
 def quiet(a: Aligned, rule: SettleRule) -> np.ndarray:

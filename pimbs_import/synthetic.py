@@ -34,6 +34,7 @@ class LogSpec:
     noise: SensorNoise = SensorNoise()
     extra_joints: tuple[str, ...] = ("head_pan", "r_elbow")
     temperature: bool = True
+    split_joints: bool = False  # two publishers on /joint_states, each with some joints
     length_unit: float = 1.0  # published length = this * (length + length_zero): mm -> 1000
     length_zero: float = 0.0  # m: the motor encoder's zero is not the model's
     seed: int = 0
@@ -104,11 +105,16 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
         times = np.arange(0.0, end, 1 / spec.rates["joints"])
         theta = state(times, 0) + rng.normal(0, s.theta, (len(times), arm.n_joints))
         for tt, th in zip(times, theta, strict=True):
-            yield (_ns(spec.start_ns, tt + rng.uniform(0, 2e-3)), "/joint_states",
-                   "sensor_msgs/msg/JointState", JointState(
-                       header=header(_ns(spec.start_ns, tt + spec.header_offset_s)),
-                       name=jnames, position=np.array([0.1, *th[::-1], -0.2]),
-                       velocity=np.zeros(0), effort=np.zeros(0)))
+            names, position = jnames, np.array([0.1, *th[::-1], -0.2])
+            parts = [(names, position)]
+            if spec.split_joints:  # e.g. one publisher per limb: first joint, the others
+                parts = [([names[0], names[-2]], position[[0, -2]]),
+                         (names[1:-2] + names[-1:], np.r_[position[1:-2], position[-1:]])]
+            for k, (nm, pos) in enumerate(parts):
+                yield (_ns(spec.start_ns, tt + k * 1e-3 + rng.uniform(0, 1e-3)),
+                       "/joint_states", "sensor_msgs/msg/JointState", JointState(
+                           header=header(_ns(spec.start_ns, tt + spec.header_offset_s)),
+                           name=nm, position=pos, velocity=np.zeros(0), effort=np.zeros(0)))
 
     def muscle_states():
         times = np.arange(0.003, end, 1 / spec.rates["muscles"])

@@ -64,12 +64,22 @@ def test_one_row_per_held_pose_within_the_noise(tmp_path, arm, fmt):
     assert meta["temperature"] == "from the log" and 29 < rec.temperature.mean() < 32
 
 
+def test_joint_states_split_over_two_publishers(tmp_path, arm):
+    log, truth = _log(tmp_path, arm, poses=4, split_joints=True)
+    out = tmp_path / "split.parquet"
+    res = _import(log, out)
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_rows == 4 and np.abs(rec.theta - truth.theta).max() < 1e-4
+
+
 def test_without_temperatures_says_what_the_recording_holds(tmp_path, arm):
     log, _ = _log(tmp_path, arm, temperature=False, poses=3)
     out = tmp_path / "x.parquet"
     res = _import(log, out)
     assert res.exit_code == 0, res.output
     assert "temperature: absent from the log: every value is 25" in res.output
+    assert "reading arm.bag: " in res.output and " messages" in res.output  # progress (log)
     rec = read_recording(out)
     assert (rec.temperature == 25.0).all() and "absent" in rec.meta["temperature"]
 
