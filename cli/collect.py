@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import robot_option, user_errors
+from pimbs_cli.common import check_output, robot_option, user_errors
 
 
 def _default_out(robot: str) -> Path:
@@ -91,6 +91,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
     from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.plan import CollectionPlan
@@ -107,12 +108,15 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     model = ArmModel.load(robot)
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
+    check_output(out, force=True, what="recording")  # no directory made for a mistyped path
     plan = CollectionPlan(model, samples, seed, map_kind)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
     meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
                            settle=settle.meta(), move=moves.meta())
+    if plan.replaced:
+        click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
         click.echo(f"{out} already holds all {samples} samples; nothing to do")
@@ -126,7 +130,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
     from rich.console import Console
 
     from pimbs_calibration.recording import RecordingWriteError
-    from pimbs_hw.collection.progress import LiveReporter, summary_lines
+    from pimbs_hw.collection.progress import LiveReporter, LogReporter, summary_lines
     from pimbs_hw.collection.routine import Collector
     from pimbs_hw.collection.session import open_link, stop_advice
     from pimbs_hw.safety import SafetyStop
@@ -141,14 +145,17 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
             collector = Collector(link, model, plan, writer, start, settle, move=moves)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
-            with LiveReporter(console) as reporter:
+            # a live panel on a terminal; plain lines in a log, so a killed run shows progress
+            reporter_type = LiveReporter if console.is_terminal else LogReporter
+            with reporter_type(console) as reporter:
                 collector.reporter = reporter
                 collector.run()
     except KeyboardInterrupt:
         if collector is not None:
             collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
     except SafetyStop as stop:
-        reason, error = str(stop), stop_advice(stop)
+        sample = collector.summary.next_sample if collector is not None else None
+        reason, error = str(stop), stop_advice(stop, plan, sample)
     except RecordingWriteError as exc:
         reason = str(exc)
         error = (f"{exc}. The arm was relaxed; samples written so far are safe. "
