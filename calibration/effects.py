@@ -50,6 +50,7 @@ MAGNITUDE_RANGE = {
     "tendon_friction": ("friction coefficient mu", 0.0, 1.0, False),
     "link_mass": ("mass scale", 0.0, 10.0, True),
     "tension_offset": ("loadcell offset [N]", -500.0, 500.0, False),
+    "tension_gain": ("loadcell gain error (reads (1+g)·f)", -0.9, 10.0, False),
     "thermal_drift": ("drift [N/°C]", -50.0, 50.0, False),
     "elastic_stiffness": ("stiffness scale K_true/K_model", 0.0, 10.0, True),
     "joint_offset": ("joint zero offset [rad]", -0.5, 0.5, False),
