@@ -13,7 +13,9 @@
 
 Ports: ``virtual`` (in-process simulated arm on a fresh python-can virtual channel),
 ``virtual:NAME`` (same, on channel NAME), ``pty`` (simulated arm behind a pty, driven through
-the serial transport); anything else is real hardware or an external ``pimbs mockbus``
+the serial transport), ``slcan-pty`` (simulated arm behind an emulated SLCAN adapter on a
+pty, opened through python-can's real ``slcan`` interface); anything else is real hardware
+or an external ``pimbs mockbus``
 (``can0``, ``pcan:PCAN_USBBUS1``, ``udp_multicast``, ``/dev/ttyACM0``...; see
 ``pimbs_hw.transport``). ``mock`` is the ``MockArm`` (true state via ``mock.snapshot()``) or
 None on hardware. Faults and effects exist only on the simulated arm.
@@ -31,9 +33,17 @@ from pimbs_hw.mock import MockArm
 from pimbs_hw.safety import SafetyLimits
 from pimbs_hw.transport import open_transport
 
+SIMULATED_PORTS = ("virtual", "pty", "slcan-pty")
+
 
 def is_simulated(port: str) -> bool:
-    return port in ("virtual", "pty") or port.startswith("virtual:")
+    return port in SIMULATED_PORTS or port.startswith("virtual:")
+
+
+def _mock_link(port: str) -> str:
+    if port == "virtual":
+        return f"virtual:pimbs-{uuid.uuid4().hex[:12]}"
+    return "slcan" if port == "slcan-pty" else port
 
 
 @contextmanager
@@ -47,16 +57,18 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
 
         robot = load_robot(robot)
     mock = None
+    transport_kwargs = {}
     if is_simulated(port):
-        link = f"virtual:pimbs-{uuid.uuid4().hex[:12]}" if port == "virtual" else port
-        mock = MockArm(robot, link, effect=effect, faults=faults or (), seed=seed,
+        if port == "slcan-pty":
+            transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait
+        mock = MockArm(robot, _mock_link(port), effect=effect, faults=faults or (), seed=seed,
                        speed=speed).start()
         port = mock.port
     elif faults or effect is not None:
         raise ValueError(f"faults and effects exist only on the simulated arm, not on port "
                          f"{port!r}; use --port virtual")
     try:
-        transport = open_transport(port)
+        transport = open_transport(port, **transport_kwargs)
         try:
             driver = ArmDriver(transport, robot, limits, connect_timeout_s=connect_timeout_s)
         except BaseException:

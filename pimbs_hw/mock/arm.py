@@ -1,10 +1,12 @@
 """Simulated muscle boards on a bus: the whole arm, runnable in a background thread.
 
 ``MockArm`` speaks the board protocol on a python-can bus (``virtual:NAME`` in-process, or
-any port a CAN transport accepts, e.g. ``udp_multicast`` or ``vcan0`` across processes) or on
-a pty (``link="pty"``; the driver opens ``mock.port``). Behind the boards is ``Plant``: the
-arm model's static equilibrium with first-order settling, noisy sensors, load heating, an
-optional concealed effect (``effects.py``) and injected faults (``faults.py``).
+any port a CAN transport accepts, e.g. ``vcan0`` across processes on one host) or on
+a pty (``link="pty"``; the driver opens ``mock.port``), or behind an emulated SLCAN USB-CAN
+adapter on a pty (``link="slcan"``; ``mock.port`` is ``slcan:/dev/pts/N`` for python-can).
+Behind the boards is ``Plant``: the arm model's static equilibrium with first-order
+settling, noisy sensors, load heating, an optional concealed effect (``effects.py``) and
+injected faults (``faults.py``).
 
     with MockArm(robot, "virtual:demo", speed=10, faults=["overheat:m1@3"]) as mock:
         ...  # ArmDriver(CanTransport(mock.port), robot)
@@ -66,6 +68,11 @@ def _open_link(link: str) -> tuple[Transport, str]:
     if link == "pty":
         master = PtyMaster()
         return SerialTransport(master, name=f"mock pty {master.slave_path}"), master.slave_path
+    if link == "slcan":
+        from pimbs_hw.mock.slcan import SlcanAdapter
+
+        adapter = SlcanAdapter()
+        return adapter, adapter.port
     return CanTransport(link), link
 
 
