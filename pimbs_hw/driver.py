@@ -441,19 +441,30 @@ class ArmDriver:
 
     # -- stop and close --------------------------------------------------------------------
     def _trip(self, stop: SafetyStop) -> None:
-        """Relax every board we can still reach, remember the stop, raise it."""
+        """Relax every board we can still reach, remember the stop, raise it.
+
+        ``stop.end_state`` names the state the arm is left in: relaxed by the driver, or,
+        when the boards cannot be reached, what each protocol's boards do by themselves.
+        """
         if self.tripped is None:
             self.tripped = stop
-            self._relax_quietly()
+            reached = self._relax_quietly()
+            stop.end_state = ("relaxed: every board at its holding floor" if reached else
+                              "; ".join(p.unreachable(self.limits.watchdog_s)
+                                        for p in self.protocols if p.indices))
         raise stop
 
-    def _relax_quietly(self) -> None:
+    def _relax_quietly(self) -> bool:
+        """Send every board its relax; False when the link refused (bus-off, unplugged)."""
         try:
+            if getattr(self.transport, "_fault", None) is not None:
+                return False  # a dead link: nothing we send arrives
             for i, proto in enumerate(self._proto):
                 for frame in proto.command(i, "relax"):  # type: ignore[union-attr]
                     self.transport.send(*frame)
         except Exception:  # noqa: BLE001 - bus-off/unplugged: the board watchdogs relax
-            pass
+            return False
+        return True
 
     def close(self) -> None:
         """Relax the arm and release the transport (idempotent)."""

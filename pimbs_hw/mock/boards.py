@@ -19,6 +19,7 @@ from pimbs_hw.protocol.board import RawFrame
 from pimbs_hw.protocol.codec import (
     MESSAGE_TYPES,
     CodecError,
+    Fault,
     JointStatus,
     Status,
     decode,
@@ -103,16 +104,17 @@ class ProfileBoard:
         self.mode, self.target = "hold", math.nan
         self.relax_n = spec.f_floor
         self.counter = 0
-        # command frame id -> (kind, frame spec) for the frames carrying the value
-        self.commands: dict[int, tuple[str, object]] = {}
+        # command frame id -> (kind, frame spec) of every command frame with that id: one id
+        # can carry several commands, told apart by their constant signals (a mode byte)
+        self.commands: dict[int, list[tuple[str, object]]] = {}
         self.frame_ids: set[int] = set()
         for kind, frames in profile.commands.items():
             for f in frames:
                 msg = profile.db.get_message_by_name(f.message)
                 fid = node_id[f.node].frame_id(msg.frame_id, spec.board_id)
                 self.frame_ids.add(fid)
-                if f.value_signal is not None:
-                    self.commands[fid] = (kind, f)
+                if f.value_signal is not None or kind == "stop":
+                    self.commands.setdefault(fid, []).append((kind, f))
         for f in profile.setup:
             msg = profile.db.get_message_by_name(f.message)
             self.frame_ids.add(node_id[f.node].frame_id(msg.frame_id, spec.board_id))
@@ -125,16 +127,26 @@ class ProfileBoard:
             self.outgoing.append((node_id[node].frame_id(msg.frame_id, spec.board_id), msg,
                                   readings, period))
         self.due = [now] * len(self.outgoing)
-        self.faults = 0  # nonzero: fault signals set (none injected by default)
+        self.faults = Fault(0)  # latched by the board (its watchdog), cleared by a command
+        self.last_command = now
 
     def receive(self, fid: int, data: bytes, now: float, reading: SiReading) -> bool:
-        entry = self.commands.get(fid)
-        if entry is None:
+        candidates = self.commands.get(fid)
+        if not candidates:
             return False  # mode switches, setup: accepted, nothing to do in simulation
-        kind, frame = entry
         try:
-            values = self.profile.db.get_message_by_name(frame.message).decode(data)
+            values = self.profile.db.get_message_by_name(candidates[0][1].message).decode(
+                data, decode_choices=False)
         except Exception:  # noqa: BLE001 - a malformed frame is ignored, as firmware does
+            return False
+        match = [(k, f) for k, f in candidates
+                 if all(abs(values[n] - v) < 1e-9 for n, v in f.constants.items())]
+        if not match:
+            return False
+        kind, frame = match[0]
+        self.last_command, self.faults = now, Fault(0)
+        if frame.value_signal is None:  # a stop: hold the current length
+            self.mode, self.target = "hold", reading.position_m
             return False
         value = float(values[frame.value_signal]) / frame.per_si
         if kind == "length":
@@ -147,6 +159,12 @@ class ProfileBoard:
     def supervise(self, now: float, reading: SiReading) -> None:
         if self.mode == "hold" and math.isnan(self.target):
             self.target = reading.position_m  # power-up: hold where it is
+        dog = self.profile.watchdog
+        if dog is not None and now - self.last_command > dog[0] and self.mode not in (
+                "relax", "idle", "hold"):
+            self.mode, self.target = ("relax", self.relax_n) if dog[1] == "relax" else (
+                "idle", 0.0)  # idle: motor off, the wire goes slack
+            self.faults |= Fault.WATCHDOG
 
     def actuation(self) -> tuple[str, float]:
         if self.mode in ("hold", "position"):
@@ -157,8 +175,9 @@ class ProfileBoard:
         values = {s.name: 0.0 for s in msg.signals}
         status = self.profile.status
         for r in readings:
-            if r.kind is not None:
-                values[r.signal] = float(self.faults)
+            if r.kind is not None:  # a fault signal: set when the board has that fault
+                values[r.signal] = float(bool(self.faults & r.kind
+                                              or (r.kind == Fault.MOTOR and self.faults)))
                 continue
             quantity = next(q for q, s in status.items() if s is r)
             if quantity == "counter":

@@ -129,3 +129,7 @@ class BoardProtocol(ABC):
 
     def describe(self) -> str:
         return self.name
+
+    def unreachable(self, watchdog_s: float) -> str:
+        """What these boards do when the host cannot reach them any more (the end state)."""
+        return f"{self.name} boards: relaxed by their own watchdog within {watchdog_s:g} s"

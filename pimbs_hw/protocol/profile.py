@@ -27,6 +27,8 @@ mistake is a ``ProfileError`` naming the file, the line and the signal.
       relax: ...                         # optional: default = tension at the relax target
       stop: ...                          # optional: default = length at the last reading
     setup: [...]                         # optional frames sent at start-up (e.g. enable)
+    watchdog: {timeout_s: 0.5, action: relax}   # optional: what the board does by itself
+                                         # when commands stop: relax | idle (motor off)
 
 Untrusted files never run code: the mapping is YAML data, read with the safe loader, and
 placeholders are the single word ``value``.
@@ -130,11 +132,12 @@ class Profile:
     commands: dict[str, list[CommandFrame]]
     setup: list[CommandFrame]
     version: tuple[str, str, tuple[str, ...]] | None = None  # node, message, signals
+    watchdog: tuple[float, str] | None = None  # (timeout s, "relax" | "idle")
     periods: dict[str, float] = field(default_factory=dict)  # message -> cycle time, s
 
     @property
     def capabilities(self) -> Capabilities:
-        return Capabilities(board_watchdog=False, board_limits=False,
+        return Capabilities(board_watchdog=self.watchdog is not None, board_limits=False,
                             temperature="temperature" in self.status,
                             counter="counter" in self.status, checksum=False,
                             configure=False, version=self.version is not None)
@@ -295,8 +298,15 @@ def load_profile(path: str | Path) -> Profile:
     setup = _frames(check, raw.get("setup") or [], "setup", nodes, needs_value=False)
     name = raw.get("profile") or path.name.removesuffix(".profile.yaml")
     periods = {m.name: m.cycle_time / 1000.0 for m in db.messages if m.cycle_time}
+    watchdog = None
+    if (entry := raw.get("watchdog")) is not None:
+        if not isinstance(entry, _Map) or entry.get("action") not in ("relax", "idle"):
+            raise check.fail(entry if isinstance(entry, _Map) else raw, "watchdog.action",
+                             "say what the board does when commands stop: relax or idle")
+        watchdog = (check.number(entry, "watchdog", "timeout_s", positive=True),
+                    entry["action"])
     return Profile(str(name), path, db, nodes, status, faults, commands, setup, version,
-                   periods)
+                   watchdog, periods)
 
 
 def _reading(check: _Checker, entry: Any, key: str, nodes: dict[str, Node]) -> Reading:
@@ -454,3 +464,13 @@ class ProfileProtocol(BoardProtocol):
 
     def describe(self) -> str:
         return f"profile {self.name}"
+
+    def unreachable(self, watchdog_s: float) -> str:
+        dog = self.profile.watchdog
+        if dog is None:
+            return (f"{self.name} boards: holding their last command (they have no watchdog; "
+                    "cut their power to relax the arm)")
+        if dog[1] == "idle":
+            return (f"{self.name} boards: motors idled by their own watchdog within {dog[0]:g} s"
+                    " (wires slack)")
+        return f"{self.name} boards: relaxed by their own watchdog within {dog[0]:g} s"
