@@ -138,7 +138,7 @@ class _Rx:
                 self.lost -= self.gaps.popleft()[1]
             n = len(self.gaps)
             return (self.lost / (self.lost + n) if n else 0.0), n
-        window_s = max(window_s, 10 * self.period_s)
+        window_s = max(window_s, 0.5, 20 * self.period_s)  # enough frames to judge a rate
         while self.arrivals and now - self.arrivals[0] > window_s:
             self.arrivals.popleft()
         if now - self.first < window_s:
@@ -456,12 +456,15 @@ class ArmDriver:
 
     def _relax_quietly(self) -> bool:
         """Send every board its relax; False when the link refused (bus-off, unplugged)."""
+        send = self.transport.send
+        if hasattr(self.transport, "usable"):
+            if not self.transport.usable():
+                return False  # bus-off or a lost link: nothing we send arrives
+            send = self.transport.send_despite_fault
         try:
-            if getattr(self.transport, "_fault", None) is not None:
-                return False  # a dead link: nothing we send arrives
             for i, proto in enumerate(self._proto):
                 for frame in proto.command(i, "relax"):  # type: ignore[union-attr]
-                    self.transport.send(*frame)
+                    send(*frame)
         except Exception:  # noqa: BLE001 - bus-off/unplugged: the board watchdogs relax
             return False
         return True

@@ -103,7 +103,7 @@ class MockArm:
             raise ValueError(f"{self.robot.name}: board ids must be unique in 0..{MAX_BOARDS - 1}")
         self._by_frame = {fid: i for i, b in enumerate(self.boards) for fid in b.frame_ids}
         self._home = False
-        self._sent = [0] * m  # frames each board sent (drop-frames keeps every 4th)
+        self._sent: dict[int, int] = {}  # frames sent per id (drop-frames keeps every 4th)
         try:
             self.transport, self.port = _open_link(link)
         except BaseException:
@@ -265,8 +265,8 @@ class MockArm:
         if self._bus_off or self._fault_on("silent-board", name):
             return
         for fid, data in frames:
-            self._sent[i] += 1
-            if self._fault_on("drop-frames", name) and self._sent[i] % DROP_KEEP_EVERY:
+            self._sent[fid] = self._sent.get(fid, 0) + 1
+            if self._fault_on("drop-frames", name) and self._sent[fid] % DROP_KEEP_EVERY:
                 continue
             if self._fault_on("corrupt-frames", name):
                 if not board.checksum:  # CAN's own CRC fails: the controllers see an error

@@ -29,6 +29,7 @@ from pimbs_hw.protocol.codec import (
 from pimbs_hw.protocol.profile import Profile
 
 VERSION_PERIOD_S = 1.0  # profile boards announce their firmware version once a second
+MAX_CATCH_UP = 10  # frames per message a late simulation sends at once
 RELAX_MATCH_N = 0.5  # a tension command this close to f_floor is the host's relax
 
 
@@ -199,8 +200,13 @@ class ProfileBoard:
     def frames(self, now: float, reading: SiReading, reply: bool = False) -> list[RawFrame]:
         out = []
         for k, (fid, msg, readings, period) in enumerate(self.outgoing):
-            if now >= self.due[k]:
-                self.due[k] = now + period
+            if now < self.due[k]:
+                continue
+            # a board keeps its own clock: if this simulation was descheduled, the frames
+            # it owed go out now (a real host sees them queued in a burst, not missing)
+            owed = min(1 + int((now - self.due[k]) / period), MAX_CATCH_UP)
+            self.due[k] = max(self.due[k] + owed * period, now - period)
+            for _ in range(owed):
                 out.append((fid, msg.encode(self._signals(msg, readings, reading),
                                             strict=False)))
         return out

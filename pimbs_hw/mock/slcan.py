@@ -15,6 +15,8 @@ board falling silent, as with most USB adapters.
 
 from __future__ import annotations
 
+import os
+import select
 import threading
 import time
 
@@ -25,6 +27,7 @@ from pimbs_hw.transport.serialport import PtyMaster
 OK, ERROR = b"\r", b"\a"
 VERSION = b"V1013\r"  # hardware 1.0, software 1.3, as a USBtin answers
 SERIAL_NUMBER = b"NPIMB\r"
+FLOW_WAIT_S = 1.0
 
 
 def format_frame(arbitration_id: int, data: bytes, extended: bool = False) -> bytes:
@@ -110,8 +113,21 @@ class SlcanAdapter(QueuedTransport):
 
     # -- bus side (the simulated boards) ----------------------------------------------------
     def send(self, arbitration_id: int, data: bytes) -> None:
-        if self.is_open and not self.closed:
-            self._pty.write(format_frame(arbitration_id, data))
+        """Queue a bus frame for the host. USB is flow-controlled: when the host reads late
+        the adapter waits (up to ``FLOW_WAIT_S``) instead of dropping, as its buffer would."""
+        if not self.is_open or self.closed:
+            return
+        line = format_frame(arbitration_id, data)
+        deadline = time.monotonic() + FLOW_WAIT_S
+        while line and not self.closed:
+            try:
+                line = line[os.write(self._pty.fd, line):]
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    return  # the host stopped reading: the adapter's buffer overflows
+                select.select([], [self._pty.fd], [], 0.01)
+            except OSError:
+                return  # nobody has the port open
 
     def send_error(self, error_class: int) -> None:
         """SLCAN cannot carry error frames: nothing reaches the host."""

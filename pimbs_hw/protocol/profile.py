@@ -263,11 +263,11 @@ def load_profile(path: str | Path) -> Profile:
                 raise check.fail(status_raw, f"status.{quantity}", "required: "
                                  "{node, message, signal, per_si}")
             continue
-        status[quantity] = _reading(check, entry, f"status.{quantity}", nodes)
+        status[quantity] = _reading(check, entry, status_raw, f"status.{quantity}", nodes)
     faults = []
     for k, entry in enumerate(status_raw.get("faults") or []):
         key = f"status.faults[{k}]"
-        reading = _reading(check, entry, key, nodes)
+        reading = _reading(check, entry, status_raw, key, nodes)
         kind = entry.get("kind")
         if kind not in FAULT_KINDS:
             raise check.fail(entry, f"{key}.kind", f"unknown fault kind {kind!r}; use one of "
@@ -293,9 +293,10 @@ def load_profile(path: str | Path) -> Profile:
             if kind in ("length", "tension"):
                 raise check.fail(commands_raw, f"commands.{kind}", "required: a list of frames")
             continue
-        commands[kind] = _frames(check, frames, f"commands.{kind}", nodes,
+        commands[kind] = _frames(check, frames, commands_raw, f"commands.{kind}", nodes,
                                  needs_value=kind in ("length", "tension"))
-    setup = _frames(check, raw.get("setup") or [], "setup", nodes, needs_value=False)
+    setup = _frames(check, raw.get("setup") or [], raw, "setup", nodes,
+                    needs_value=False)
     name = raw.get("profile") or path.name.removesuffix(".profile.yaml")
     periods = {m.name: m.cycle_time / 1000.0 for m in db.messages if m.cycle_time}
     watchdog = None
@@ -309,9 +310,10 @@ def load_profile(path: str | Path) -> Profile:
                    watchdog, periods)
 
 
-def _reading(check: _Checker, entry: Any, key: str, nodes: dict[str, Node]) -> Reading:
+def _reading(check: _Checker, entry: Any, parent: _Map, key: str, nodes: dict[str, Node]
+             ) -> Reading:
     if not isinstance(entry, _Map):
-        raise ProfileError(f"{check.path}:0: {key}: expected {{node, message, signal}}")
+        raise check.fail(parent, key, "expected {node, message, signal}")
     node = check.node(entry, key, nodes)
     msg = check.message(entry, key)
     signal = check.signal(entry, key, entry.get("signal"), msg)
@@ -329,15 +331,15 @@ def _reading(check: _Checker, entry: Any, key: str, nodes: dict[str, Node]) -> R
     return Reading(node, msg.name, signal, per_si, rail)
 
 
-def _frames(check: _Checker, entries: Any, key: str, nodes: dict[str, Node], *,
-            needs_value: bool) -> list[CommandFrame]:
+def _frames(check: _Checker, entries: Any, parent: _Map, key: str,
+            nodes: dict[str, Node], *, needs_value: bool) -> list[CommandFrame]:
     if not isinstance(entries, list):
-        raise ProfileError(f"{check.path}:0: {key}: expected a list of frames")
+        raise check.fail(parent, key, "expected a list of frames")
     frames, has_value = [], False
     for k, entry in enumerate(entries):
         sub = f"{key}[{k}]"
         if not isinstance(entry, _Map):
-            raise ProfileError(f"{check.path}:0: {sub}: expected {{node, message, signals}}")
+            raise check.fail(parent, key, f"[{k}] expected {{node, message, signals}}")
         node = check.node(entry, sub, nodes)
         msg = check.message(entry, sub)
         signals = entry.get("signals") or {}
@@ -361,8 +363,8 @@ def _frames(check: _Checker, entries: Any, key: str, nodes: dict[str, Node], *,
         frames.append(CommandFrame(node, msg.name, constants, value_signal,
                                    check.number(entry, sub, "per_si", 1.0, positive=True)))
     if needs_value and not has_value:
-        raise ProfileError(f"{check.path}:0: {key}: no frame carries the command: set one "
-                           "signal to `value`")
+        raise check.fail(parent, key, "no frame carries the command: set one signal to "
+                         "`value`")
     return frames
 
 

@@ -25,6 +25,9 @@ from pimbs_hw.safety import BusOff, LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 
 VIRTUAL_DEFAULT_CHANNEL = "pimbs"
+# a send that cannot go out this long is a lost link (a full adapter buffer for a moment is
+# not: USB adapters and a busy host stall briefly); still shorter than the board watchdog
+SEND_TIMEOUT_S = 0.2
 _HINT = "use --port virtual for the simulated arm"
 # python-can's interface modules log their missing vendor libraries as warnings on import
 # ("Kvaser canlib is unavailable."); with no handler configured Python prints them bare on
@@ -143,7 +146,7 @@ class CanTransport(QueuedTransport):
     def _send(self, msg: can.Message) -> None:
         self.check()
         try:
-            self.bus.send(msg, timeout=0.05)
+            self.bus.send(msg, timeout=SEND_TIMEOUT_S)
         except can.CanError as exc:
             self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
             raise self._fault from exc  # type: ignore[misc]
