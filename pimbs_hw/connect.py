@@ -50,8 +50,13 @@ def _mock_link(port: str) -> str:
 def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
              faults: Sequence[str] | str | None = None, effect=None, seed: int = 0,
              speed: float = 1.0, limits: SafetyLimits | None = None,
-             connect_timeout_s: float = 1.0) -> Iterator[tuple[ArmDriver, MockArm | None]]:
-    """Driver for the arm on ``port``; starts the simulated arm for simulated ports."""
+             connect_timeout_s: float = 1.0, zero_m=None, mock_options: dict | None = None
+             ) -> Iterator[tuple[ArmDriver, MockArm | None]]:
+    """Driver for the arm on ``port``; starts the simulated arm for simulated ports.
+
+    ``zero_m``: encoder readings at the zero pose (from ``pimbs zero``'s calibration file).
+    ``mock_options``: extra ``MockArm`` arguments (e.g. ``encoder_offset_m``).
+    """
     if isinstance(robot, str | Path):
         from pimbs_calibration.description import load_robot
 
@@ -62,7 +67,7 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         if port == "slcan-pty":
             transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait
         mock = MockArm(robot, _mock_link(port), effect=effect, faults=faults or (), seed=seed,
-                       speed=speed).start()
+                       speed=speed, **(mock_options or {})).start()
         port = mock.port
     elif faults or effect is not None:
         raise ValueError(f"faults and effects exist only on the simulated arm, not on port "
@@ -74,6 +79,8 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         except BaseException:
             transport.close()
             raise
+        if zero_m is not None:
+            driver.set_zero(zero_m)
         with driver:
             yield driver, mock
     finally:

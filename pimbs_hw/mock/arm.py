@@ -58,6 +58,15 @@ class MockSnapshot:
                 & (np.abs(self.tension - self.relax_tension) < tol))
 
 
+IN_PROCESS: set[str] = set()  # ports served by a MockArm running in this process
+
+
+def served_in_process(port: str) -> bool:
+    """Whether simulated boards in this very process answer on ``port`` (they share its
+    CPU and GIL with the driver, unlike real boards)."""
+    return port in IN_PROCESS
+
+
 def _open_link(link: str) -> tuple[Transport, str]:
     if link == "pty":
         master = PtyMaster()
@@ -133,12 +142,14 @@ class MockArm:
 
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
+        IN_PROCESS.add(self.port)
         self._thread = threading.Thread(target=self._run, name=f"mock-arm {self.port}",
                                         daemon=True)
         self._thread.start()
         return self
 
     def stop(self) -> None:
+        IN_PROCESS.discard(self.port)
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
@@ -164,6 +175,11 @@ class MockArm:
                                 s.temperature.copy(), tuple(b.mode for b in self.boards),
                                 true_relax, tuple(f"{f.kind}:{f.muscle or '*'}"
                                                   for f in self._active))
+
+    def hold_home(self, on: bool = True) -> None:
+        """Someone holds the arm at its home pose (all joints 0 rad), e.g. to zero it."""
+        with self._lock:
+            self.plant.hold_home(on)
 
     def settled(self) -> bool:
         with self._lock:
