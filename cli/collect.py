@@ -50,8 +50,9 @@ def _stop_on_signals() -> Iterator[None]:
 
 @click.command("collect")
 @click.option("--port", required=True,
-              help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, /dev/ttyUSB0 "
-                   "(serial), or virtual for the simulated arm")
+              help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, "
+                   "slcan:/dev/ttyACM0, /dev/ttyUSB0 (serial), or virtual (slcan-pty: through "
+                   "an emulated SLCAN adapter) for the simulated arm")
 @click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True)
 @robot_option()
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
