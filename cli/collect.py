@@ -118,32 +118,30 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
     meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
                            settle=settle.meta(), move=moves.meta())
-    zero_m = _zeros(model.robot, calibration, simulated)
+    zero_m, note = _zeros(model.robot, calibration, simulated)
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
         click.echo(f"{out} already holds all {samples} samples; nothing to do")
         return
     with _stop_on_signals():
-        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed, zero_m)
+        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed, zero_m,
+             note)
 
 
-def _zeros(robot, calibration: Path | None, simulated: bool):
-    """Encoder zeros to apply: the named file, else the robot's default one if present."""
+def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, str | None]:
+    """Encoder zeros to apply (the named file, else the robot's default one if present),
+    and the line to show once the arm is connected."""
     from pimbs_hw.zeroing import default_path, load
 
     path = calibration or default_path(robot)
     if calibration is None and (simulated or not path.exists()):
-        if not simulated:
-            click.echo(f"note: no {path}; encoders are used as they read (run `pimbs zero` "
-                       "on a real arm first)", err=True)
-        return None
-    zero_m = load(path, robot)
-    click.echo(f"encoder zeros from {path}", err=True)
-    return zero_m
+        return None, (None if simulated else f"note: no {path}; encoders are used as they "
+                      "read (run `pimbs zero` on a real arm first)")
+    return load(path, robot), f"encoder zeros from {path}"
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-         zero_m=None) -> None:
+         zero_m=None, note=None) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -160,6 +158,8 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
                        speed=moves.speed, zero_m=zero_m) as link:
+            if note:
+                console.print(note)
             collector = Collector(link, model, plan, writer, start, settle, move=moves)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")

@@ -228,8 +228,10 @@ class ArmDriver:
                 rx.news.clear()  # wait for frames sent after this round's setup
         missing = [i for i in range(len(self._rx)) if not self._ready(i)]
         if missing:
-            names = ", ".join(f"{self.muscles[i]} (board {self.board_ids[i]}, "
-                              f"{self._proto[i].describe()})" for i in missing)  # type: ignore
+            names = ", ".join(f"{self.muscles[i]} (board {self.board_ids[i]}"
+                              + ("" if self._proto[i].name == "pimbs-v1"  # type: ignore
+                                 else f", {self._proto[i].describe()}") + ")"  # type: ignore
+                              for i in missing)
             hint = ("is the arm powered and the port right? for the simulated arm use "
                     "--port virtual" if len(missing) == len(self._rx) else "check that board")
             stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from {names}; "

@@ -149,8 +149,11 @@ def _balance_residual(arm: ArmModel, rec) -> np.ndarray:
     return -np.einsum("bmn,bm->bn", G, rec.tension) - rec.tau_gravity
 
 
-@pytest.mark.parametrize("robot", [LAB_ROBOT, ODRIVE_ROBOT], ids=["lab-board", "odrive"])
-@pytest.mark.parametrize("port", ["virtual", "slcan-pty"])
+@pytest.mark.parametrize("robot, port", [
+    (LAB_ROBOT, "virtual"), (LAB_ROBOT, "slcan-pty"), (ODRIVE_ROBOT, "virtual"),
+    (ODRIVE_ROBOT, "slcan-pty"), ("two-link-4-muscle", "slcan-pty")],
+    ids=["lab-board-virtual", "lab-board-slcan", "odrive-virtual", "odrive-slcan",
+         "pimbs-v1-slcan"])
 def test_collection_runs_hil_on_profile_boards(tmp_path, robot, port):
     out = tmp_path / "p.parquet"
     res = CliRunner().invoke(main, ["collect", "--port", port, "--robot", str(robot),
