@@ -26,7 +26,7 @@ def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
     import contextlib
 
     from pimbs_calibration.description import load_robot
-    from pimbs_hw.connect import SIMULATED_PORTS, _mock_link, is_simulated
+    from pimbs_hw.connect import SIMULATED_PORTS, is_simulated, mock_link
     from pimbs_hw.mock import MockArm
     from pimbs_hw.scan import fault_names, scan_bus
     from pimbs_hw.transport import open_transport
@@ -36,7 +36,7 @@ def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
     with contextlib.ExitStack() as stack:
         kwargs = {}
         if is_simulated(port):
-            mock = stack.enter_context(MockArm(description, _mock_link(port)))
+            mock = stack.enter_context(MockArm(description, mock_link(port)))
             click.echo(f"simulated {description.name} on {mock.port} "
                        f"(--port {'|'.join(SIMULATED_PORTS)} starts one)")
             port = mock.port

@@ -40,7 +40,8 @@ def is_simulated(port: str) -> bool:
     return port in SIMULATED_PORTS or port.startswith("virtual:")
 
 
-def _mock_link(port: str) -> str:
+def mock_link(port: str) -> str:
+    """The link a ``MockArm`` sits on for a simulated ``--port`` (a fresh virtual channel)."""
     if port == "virtual":
         return f"virtual:pimbs-{uuid.uuid4().hex[:12]}"
     return "slcan" if port == "slcan-pty" else port
@@ -66,7 +67,7 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
     if is_simulated(port):
         if port == "slcan-pty":
             transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait
-        mock = MockArm(robot, _mock_link(port), effect=effect, faults=faults or (), seed=seed,
+        mock = MockArm(robot, mock_link(port), effect=effect, faults=faults or (), seed=seed,
                        speed=speed, **(mock_options or {})).start()
         port = mock.port
     elif faults or effect is not None:

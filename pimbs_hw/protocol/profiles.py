@@ -32,7 +32,7 @@ def muscle_protocol(spec) -> str:
 
 def protocols_for(robot) -> list[BoardProtocol]:
     """One protocol object per distinct profile of ``robot``'s muscles."""
-    from pimbs_hw.protocol.profile import load_profile  # noqa: F401 (written next)
+    from pimbs_hw.protocol.profile import load_profile
 
     groups: dict[str, list[int]] = {}
     for i, spec in enumerate(robot.muscles):

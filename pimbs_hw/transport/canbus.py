@@ -26,8 +26,8 @@ from pimbs_hw.transport.base import Frame, QueuedTransport
 
 VIRTUAL_DEFAULT_CHANNEL = "pimbs"
 # a send that cannot go out this long is a lost link (a full adapter buffer for a moment is
-# not: USB adapters and a busy host stall briefly); still shorter than the board watchdog
-SEND_TIMEOUT_S = 0.2
+# not: USB adapters and a busy host stall briefly); a board watchdog acts meanwhile
+SEND_TIMEOUT_S = 0.5
 _HINT = "use --port virtual for the simulated arm"
 # python-can's interface modules log their missing vendor libraries as warnings on import
 # ("Kvaser canlib is unavailable."); with no handler configured Python prints them bare on

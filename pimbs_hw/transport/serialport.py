@@ -23,7 +23,7 @@ from pimbs_hw.safety import LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 
 READ_TIMEOUT_S = 0.05
-WRITE_TIMEOUT_S = 0.2  # a USB-serial buffer full this long is a lost link, a moment is not
+WRITE_TIMEOUT_S = 0.5  # a USB-serial buffer full this long is a lost link, a moment is not
 
 
 class ByteStream(Protocol):
