@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from safetensors.numpy import load_file, save_file
+from safetensors.numpy import load_file, save
 
+from pimbs_calibration.atomic import write_bytes_atomic, write_text_atomic
 from pimbs_learn.data import LearnError
 from pimbs_learn.model import (
     PARAM_NAMES,
@@ -59,10 +60,12 @@ def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] |
     """Write the selected weights and their description to ``out_dir``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    save_file({k: np.ascontiguousarray(result.params[k], dtype=np.float32)
-               for k in PARAM_NAMES}, str(d / WEIGHTS))
+    # each file whole or not at all: a full disk must not leave a truncated model
+    write_bytes_atomic(d / WEIGHTS, save({k: np.ascontiguousarray(result.params[k],
+                                                                  dtype=np.float32)
+                                          for k in PARAM_NAMES}))
     meta = {**model_meta(result), **(extra or {})}
-    (d / META).write_text(json.dumps(meta, indent=2) + "\n")
+    write_text_atomic(d / META, json.dumps(meta, indent=2) + "\n")
     return d
 
 
