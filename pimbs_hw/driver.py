@@ -141,8 +141,9 @@ class _Rx:
         window_s = max(window_s, 0.5, 20 * self.period_s)  # enough frames to judge a rate
         while self.arrivals and now - self.arrivals[0] > window_s:
             self.arrivals.popleft()
-        if now - self.first < window_s:
-            return 0.0, len(self.arrivals)
+        if now - self.first < window_s or not self.arrivals or (
+                now - self.arrivals[-1] > 10 * self.period_s):
+            return 0.0, len(self.arrivals)  # too early to judge, or silence: not loss
         expected = window_s / self.period_s
         return max(0.0, 1.0 - len(self.arrivals) / expected), int(expected)
 

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from pimbs_cli.main import main
 from pimbs_hw import PortError, open_arm
+from pimbs_hw.collection.session import SIMULATED_LIMITS
 from pimbs_hw.mock.slcan import format_frame, parse_frame
 from pimbs_hw.transport import CanTransport
 
@@ -100,7 +101,8 @@ def test_slcan_line_format_round_trips():
 
 
 def test_driver_through_python_can_slcan_interface():
-    with open_arm("slcan-pty", ROBOT, speed=10.0, seed=1) as (driver, mock):
+    with open_arm("slcan-pty", ROBOT, speed=10.0, seed=1, limits=SIMULATED_LIMITS) as (
+            driver, mock):
         assert mock.port.startswith("slcan:/dev/") and driver.transport.bus.__class__.__name__ \
             == "slcanBus"
         driver.command("tension", [30.0, 40.0, 30.0, 40.0])

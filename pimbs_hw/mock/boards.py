@@ -29,7 +29,7 @@ from pimbs_hw.protocol.codec import (
 from pimbs_hw.protocol.profile import Profile
 
 VERSION_PERIOD_S = 1.0  # profile boards announce their firmware version once a second
-MAX_CATCH_UP = 10  # frames per message a late simulation sends at once
+MAX_CATCH_UP = 50  # frames per message a late simulation sends at once (0.5 s at 10 ms)
 RELAX_MATCH_N = 0.5  # a tension command this close to f_floor is the host's relax
 
 
