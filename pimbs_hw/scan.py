@@ -69,7 +69,7 @@ def scan_protocols(robot=None) -> list[tuple[BoardProtocol, dict[int, str]]]:
         if proto != "pimbs-v1" and proto not in profiles:
             profiles.append(proto)
     out: list[tuple[BoardProtocol, dict[int, str]]] = [
-        (PimbsV1(range(MAX_BOARDS), boards), names.get("pimbs-v1", {}))]
+        (PimbsV1(range(MAX_BOARDS), boards, n_joints=MAX_BOARDS), names.get("pimbs-v1", {}))]
     for name in [*profiles, *(p for p in SHIPPED if p not in profiles)]:
         try:
             profile = load_profile(profile_path(name))

@@ -26,6 +26,7 @@ from pimbs_hw.safety import (
     Overheat,
     SafetyStop,
 )
+from tests.test_collect import _balance_residual
 from tests.test_driver_mock import wait_until
 
 LAB = Path(__file__).parent.parent / "fixtures" / "lab-board"
@@ -145,11 +146,6 @@ def test_every_fault_ends_in_a_named_state(robot, unreachable, spec, stop, per_m
 
 
 # ------------------------------------------------------------- whole collection, HIL
-def _balance_residual(arm: ArmModel, rec) -> np.ndarray:
-    G = arm.muscle_jacobian(rec.theta)
-    return -np.einsum("bmn,bm->bn", G, rec.tension) - rec.tau_gravity
-
-
 @pytest.mark.parametrize("robot, port", [
     (LAB_ROBOT, "virtual"), (LAB_ROBOT, "slcan-pty"), (ODRIVE_ROBOT, "virtual"),
     (ODRIVE_ROBOT, "slcan-pty"), ("two-link-4-muscle", "slcan-pty")],
