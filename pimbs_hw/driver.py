@@ -131,14 +131,15 @@ class _Rx:
         """(fraction of frames lost, frames received) over the last ``window_s``.
 
         By counter gaps where the protocol counts its frames, else by the arrival rate
-        against the status period (judged only once a whole window has been watched).
+        against the status period over ``rate_window`` (judged only once a whole window has
+        been watched, and not during a silence, which is ``BoardSilent``'s to call).
         """
         if self.counted:
             while self.gaps and now - self.gaps[0][0] > window_s:
                 self.lost -= self.gaps.popleft()[1]
             n = len(self.gaps)
             return (self.lost / (self.lost + n) if n else 0.0), n
-        window_s = max(window_s, 0.5, 20 * self.period_s)  # enough frames to judge a rate
+        window_s = self.rate_window(window_s)
         while self.arrivals and now - self.arrivals[0] > window_s:
             self.arrivals.popleft()
         if now - self.first < window_s or not self.arrivals or (
@@ -146,6 +147,12 @@ class _Rx:
             return 0.0, len(self.arrivals)  # too early to judge, or silence: not loss
         expected = window_s / self.period_s
         return max(0.0, 1.0 - len(self.arrivals) / expected), int(expected)
+
+    def rate_window(self, window_s: float) -> float:
+        """Window for a rate judgement: long enough that a host which reads late (frames
+        queued, then read in a burst) is not mistaken for a lossy bus; a 75 % loss is
+        still seen within it."""
+        return window_s if self.counted else max(window_s, 2.0, 100 * self.period_s)
 
     def corrupt_in_last_second(self, now: float) -> int:
         while self.corrupt and now - self.corrupt[0] > 1.0:
@@ -296,7 +303,8 @@ class ArmDriver:
             if n >= 4 and loss > lim.max_loss:
                 how = "counter gaps" if rx.counted else "arrival rate"
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
-                                         f"{lim.loss_window_s} s ({how})", **where))
+                                         f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
+                                         **where))
             if (found := fault_stop(rx.faults)) is not None:
                 self._trip(found[0](found[1], **where))
             if rx.saturated:
