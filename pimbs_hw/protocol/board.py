@@ -45,7 +45,7 @@ class Capabilities:
             "board_limits": "no board-side tension/thermal limit: the host clamps every "
                             "command and stops on a reading above the ceiling",
             "temperature": "no temperature: no thermal derate or overheat stop",
-            "counter": "no rolling counter: frame loss is judged from the arrival rate "
+            "counter": "no rolling counter: frame loss is judged from the arrival rate (over 2 s) "
                        "against the message cycle time",
             "checksum": "no payload checksum beyond CAN's own CRC: corruption shows as CAN "
                         "error frames (or, behind an adapter that hides them, as lost frames)",
