@@ -96,6 +96,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
     from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.plan import CollectionPlan
@@ -119,6 +120,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
     meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
                            settle=settle.meta(), move=moves.meta())
+    if plan.replaced:
+        click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
@@ -173,7 +176,8 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
         if collector is not None:
             collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
     except SafetyStop as stop:
-        reason, error = str(stop), stop_advice(stop)
+        sample = collector.summary.next_sample if collector is not None else None
+        reason, error = str(stop), stop_advice(stop, plan, sample)
     except RecordingWriteError as exc:
         reason = str(exc)
         error = (f"{exc}. The arm was relaxed; samples written so far are safe. "

@@ -21,6 +21,8 @@ COMMANDS: dict[str, str] = {
     "diagnose": "pimbs_cli.diagnose",
     "scan": "pimbs_cli.scan",
     "zero": "pimbs_cli.zero",
+    "robot": "pimbs_cli.robot",
+    "import": "pimbs_cli.import_log",
 }
 
 
