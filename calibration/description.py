@@ -18,6 +18,8 @@ Muscle file layout (values under ``defaults`` apply to every muscle that does no
       - {name: shoulder_pitch, range: [-0.5, 0.5]}
     lock: {wrist_roll: 0.3}               # optional: value of a joint not driven (default 0)
     defaults: {K: 1000, f_max: 600, f_floor: 10, counts_per_m: ..., ...}
+                                          # optional protocol: pimbs-v1 (default),
+                                          # odrive-cansimple, or lab.profile.yaml
     muscles:
       - name: m0
         board_id: 1
@@ -108,6 +110,9 @@ class MuscleSpec:
     counts_per_m: float  # motor encoder counts per metre of wire
     loadcell_n_per_count: float
     loadcell_offset_counts: float
+    # board protocol: None = PIMBS v1; a shipped profile name (odrive-cansimple) or the
+    # absolute path of a lab's ``*.profile.yaml`` (a .dbc + mapping; see pimbs_hw)
+    protocol: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -368,7 +373,18 @@ def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Pat
                                f"[0, f_max={values['f_max']})", "Lower f_floor or raise f_max")
     via = _parse_path(_require(entry, "path", list, path, f"{field}.path"), model, joints,
                       path, f"{field}.path")
-    return MuscleSpec(name=name, board_id=board_id, path=via, **values)
+    protocol = entry.get("protocol")
+    if protocol is not None:
+        if not isinstance(protocol, str) or not protocol:
+            raise DescriptionError(path, f"{field}.protocol", f"{protocol!r} is not a profile",
+                                   "Write pimbs-v1, odrive-cansimple or a path to a "
+                                   "*.profile.yaml")
+        if protocol.endswith(".yaml"):
+            protocol = str((path.parent / protocol).resolve())
+            if not Path(protocol).is_file():
+                raise DescriptionError(path, f"{field}.protocol", f"no file {protocol}",
+                                       "Give the profile's path relative to this file")
+    return MuscleSpec(name=name, board_id=board_id, path=via, protocol=protocol, **values)
 
 
 def _parse_path(entries: list, model, joints: tuple[str, ...], path: Path, field: str

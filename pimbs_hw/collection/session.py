@@ -18,6 +18,7 @@ from pimbs_hw import is_simulated, open_arm
 from pimbs_hw.collection.link import DriverLink
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.errors import HardwareError
+from pimbs_hw.mock.arm import served_in_process
 from pimbs_hw.safety import (
     BoardSilent,
     BusOff,
@@ -46,8 +47,8 @@ class ConnectError(HardwareError):
 
 @contextlib.contextmanager
 def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
-              conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0
-              ) -> Iterator[DriverLink]:
+              conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0,
+              zero_m=None) -> Iterator[DriverLink]:
     """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``).
 
     On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
@@ -57,7 +58,10 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed, limits=SIMULATED_LIMITS if is_simulated(port) else None))
+                speed=speed,
+                limits=SIMULATED_LIMITS if is_simulated(port) or served_in_process(port)
+                else None,
+                zero_m=zero_m))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
@@ -94,10 +98,12 @@ def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
     """
     todo = next((text for kind, text in _ADVICE if isinstance(stop, kind)),
                 "inspect the arm")
+    state = getattr(stop, "end_state", "relaxed")
+    state = "The arm was relaxed" if state == "relaxed" else f"Arm left {state}"
     if isinstance(stop, TensionLimit) and plan is not None and sample is not None \
             and sample < plan.n_samples:
-        return f"{stop}. The arm was relaxed. {ceiling_verdict(stop, plan, sample)}"
-    return f"{stop}. The arm was relaxed. What to do: {todo}; then rerun with --resume."
+        return f"{stop}. {state}. {ceiling_verdict(stop, plan, sample)}"
+    return f"{stop}. {state}. What to do: {todo}; then rerun with --resume."
 
 
 def ceiling_verdict(stop: TensionLimit, plan: CollectionPlan, sample: int) -> str:
