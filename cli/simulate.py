@@ -18,11 +18,11 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True)
 @click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
               help="write a 'real' recording with this effect present but unlabelled: "
-                   "tendon_friction, link_mass, tension_offset, thermal_drift, "
+                   "tendon_friction, link_mass, tension_offset, tension_gain, thermal_drift, "
                    "elastic_stiffness, joint_offset, routing (repeatable), e.g. "
                    "tendon_friction:0.2 or tension_offset:15,muscles=m1; aliases: "
-                   "friction, mass, offset, loadcell_offset, drift, stiffness, "
-                   "encoder_offset")
+                   "friction, mass, offset, loadcell_offset, gain, loadcell_gain, drift, "
+                   "stiffness, encoder_offset")
 @click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="sensor noise scale (0: exact data)")
 @force_option()
@@ -32,6 +32,7 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_calibration.effects import parse_effect
+    from pimbs_calibration.poses import replaced_note
     from pimbs_calibration.recording import RecordingWriteError, write_recording
     from pimbs_calibration.simulate import simulate
 
@@ -46,6 +47,8 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     except RecordingWriteError as exc:  # the message names the file; simulate has no resume
         raise click.ClickException(f"{exc}; free disk space and run the same command "
                                    "again") from exc
+    if meta["replaced_poses"]:
+        click.echo(replaced_note(meta["replaced_poses"], samples, seed), err=True)
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")

@@ -114,7 +114,7 @@ class SchemaPlan(CollectionPlan):
         if far:
             raise Unsafe(f"pose far outside the schema's training range ({'; '.join(far)})")
         # the geometric QP's tensions start the fixed point (InfeasiblePoseError: skipped)
-        start = model.tension_distribution(theta, self.f_min[i])
+        start = model.tension_distribution(theta, self.f_min[i], f_max=self.ceiling)
         tension = self._tensions(theta, self.f_min[i], start)
         far = domain.outside(theta, tension, model.joints, model.muscles, EXTRAPOLATION_BAND)
         if far:
@@ -151,7 +151,7 @@ class SchemaPlan(CollectionPlan):
         for _ in range(TENSION_ITERATIONS):
             G = self.anchored.jacobian(theta, f)
             try:
-                new = self.model.tensions_for(theta, G, f_min)
+                new = self.model.tensions_for(theta, G, f_min, f_max=self.ceiling)
             except InfeasiblePoseError as exc:
                 raise Unsafe(f"the schema's moment arms cannot hold this pose ({exc})") from exc
             done = np.abs(new - f).max() < TENSION_TOL
