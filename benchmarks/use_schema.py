@@ -165,7 +165,7 @@ def main() -> None:
 
 def table(r: dict, joints: list[str]) -> str:
     def deg(v: list[float]) -> str:
-        return " / ".join(f"{x:.2f}" for x in v)
+        return " / ".join(f"{x:.2g}" if x < 0.1 else f"{x:.2f}" for x in v)
 
     g = r["geometric"]
     lines = [f"conceal: {', '.join(r['conceal'])}; {r['test_samples']} new poses",
