@@ -68,6 +68,15 @@ def fit_effects(physics: Physics, data: Samples, units: list[Unit],
     return Fit(units, params, weights, s_len, s_tau, profile_log_lik(r_len, r_tau), cov)
 
 
+def log_lik_at(physics: Physics, data: Samples, units: list[Unit], params: np.ndarray,
+               key=None) -> float:
+    """Profile log-likelihood of ``data`` with the effect parameters held at ``params``."""
+    cache_key = None if _moves_pose(units) else key
+    state = apply_effects(physics, data, units, np.asarray(params, float))
+    weights = fit_schema(physics, state, data, cache_key)
+    return profile_log_lik(*residuals(physics, state, data, weights, cache_key))
+
+
 def folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
     """Held-out index sets: a seeded shuffle cut into ``k`` parts."""
     perm = np.random.default_rng(seed).permutation(n)
