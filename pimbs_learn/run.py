@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from pimbs_learn.data import LearnError, Samples
+from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES
 from pimbs_learn.losses import REPORT_SCALE, LossConfig
 from pimbs_learn.model import HIDDEN, Scaling
 
@@ -33,10 +34,16 @@ class Run:
     loss: LossConfig = LossConfig()
     seed: int = 0
     atl: bool = True
+    structure: str = MLP  # see pimbs_learn.graph
 
     @property
     def map_name(self) -> str:
         return "atl" if self.atl else "al"
+
+    @property
+    def network_inputs_tension(self) -> bool:
+        """Does the MLP itself take f (the paper's ATL-Map), or only θ?"""
+        return self.atl and self.structure == MLP
 
     def check(self) -> None:
         """Refuse runs that cannot train meaningfully, before spending any time."""
@@ -44,6 +51,10 @@ class Run:
             raise LearnError("training and evaluation sets must each hold at least one sample")
         if self.train.joints != self.eval.joints or self.train.muscles != self.eval.muscles:
             raise LearnError("training and evaluation samples come from different bodies")
+        if self.structure not in STRUCTURES:
+            raise LearnError(f"unknown structure {self.structure!r}: one of {STRUCTURES}")
+        if self.structure == SERIES_ELASTIC and not self.atl:
+            raise LearnError("the series-elastic structure is an ATL-Map (it needs tension)")
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
 
@@ -101,6 +112,8 @@ class TrainResult:
             "n_eval": self.run.eval.n_samples,
             "loss": self.run.loss.name,
             "alpha": self.run.loss.alpha,
+            "weighting": self.run.loss.weighting,
+            "structure": self.run.structure,
             "map": self.run.map_name,
             "seed": self.run.seed,
         }

@@ -22,11 +22,17 @@ import numpy as np
 import torch
 
 from pimbs_learn.data import LearnError
+from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
-from pimbs_learn.objective import Batch, objective_and_grads
+from pimbs_learn.objective import Batch, elastic_length, objective_and_grads
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
 
 _EVAL_CHUNK = 2048  # eval rows per matmul; bounds memory for large evaluation sets
+# Floors of the profiled variances (automatic physics weight), relative to the training
+# data's own scales: rms length error ≥ LENGTH_FLOOR·max|l|, rms torque error ≥
+# TORQUE_FLOOR·max|τ|. They only matter once both residuals are that small.
+LENGTH_FLOOR = 1e-4
+TORQUE_FLOOR = 1e-3
 
 
 def make_adam(params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
@@ -47,20 +53,24 @@ def _check_stackable(runs: list[Run]) -> None:
     first = runs[0]
     for r in runs:
         r.check()
-        if (r.train.n_samples, r.eval.n_samples, r.atl, r.train.joints, r.train.muscles) != (
+        if (r.train.n_samples, r.eval.n_samples, r.atl, r.train.joints, r.train.muscles,
+                r.structure) != (
                 first.train.n_samples, first.eval.n_samples, first.atl, first.train.joints,
-                first.train.muscles):
+                first.train.muscles, first.structure):
             raise LearnError("runs trained together need the same n_train, n_eval, map, "
-                             "joints and muscles; train the others in a separate batch")
+                             "structure, joints and muscles; train the others in a separate "
+                             "batch")
 
 
-def _eval_loss(p: Params, x: torch.Tensor, l_data: torch.Tensor,
+def _eval_loss(p: Params, x: torch.Tensor, phi: torch.Tensor | None, l_data: torch.Tensor,
                ls: torch.Tensor) -> torch.Tensor:
     """L_eval per run, evaluated in row chunks (the sum of chunk SSEs / rows · muscles)."""
     sse = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for i in range(0, x.shape[1], _EVAL_CHUNK):
         _, a2 = hidden_layers(p, x[:, i:i + _EVAL_CHUNK])
-        d = output_length(p, a2, ls) - l_data[:, i:i + _EVAL_CHUNK]
+        ph = None if phi is None else phi[:, i:i + _EVAL_CHUNK]
+        d = (output_length(p, a2, ls) + elastic_length(p, ph, ls)
+             - l_data[:, i:i + _EVAL_CHUNK])
         sse += (d * d).sum(dim=(-2, -1))
     return sse / (l_data.shape[1] * l_data.shape[2])
 
@@ -93,7 +103,11 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     n = runs[0].train.theta.shape[1]
     scalings = [r.scaling() for r in runs]
 
+    elastic = runs[0].structure == SERIES_ELASTIC
+    with_f = runs[0].network_inputs_tension
     inv = _stack([s.input_inverse()[None] for s in scalings], dt, dev)  # (R,1,D)
+    if not with_f:
+        inv = inv[..., :n]
     ls = _stack([s.length[None] for s in scalings], dt, dev)  # (R,1,M)
     th_inv = inv[..., :n]
 
@@ -101,10 +115,20 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         xs = []
         for r in runs:
             s = getattr(r, samples_of)
-            xs.append(np.hstack([s.theta, s.tension]) if r.atl else s.theta)
+            xs.append(np.hstack([s.theta, s.tension]) if with_f else s.theta)
         return _stack(xs, dt, dev) * inv
 
+    def basis(samples_of: str) -> torch.Tensor | None:
+        if not elastic:
+            return None
+        f = _stack([getattr(r, samples_of).tension for r in runs], dt, dev)
+        fs = _stack([s.tension[None] for s in scalings], dt, dev)  # type: ignore[index]
+        return elastic_basis(f, fs)
+
     x_tr = inputs("train")
+    phi_tr = basis("train")
+    auto = torch.tensor([r.loss.pinn and r.loss.weighting == "auto" for r in runs],
+                        dtype=dt, device=dev)
     batch = Batch(
         x=torch.cat([x_tr, torch.zeros_like(x_tr[:, :1])], dim=1),  # row B: h(0, 0)
         length=_stack([r.train.length for r in runs], dt, dev),
@@ -112,12 +136,23 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         tau=_stack([np.nan_to_num(r.train.tau) for r in runs], dt, dev),
         length_scale=ls, theta_inverse=th_inv,
         const_weight=torch.tensor([r.loss.const_weight for r in runs], dtype=dt, device=dev),
-        pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev))
+        pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev),
+        phi=None if phi_tr is None else torch.cat([phi_tr, torch.zeros_like(phi_tr[:, :1])],
+                                                  dim=1),
+        auto=auto,
+        length_floor=torch.tensor([(LENGTH_FLOOR * float(np.abs(r.train.length).max())) ** 2
+                                   for r in runs], dtype=dt, device=dev),
+        torque_floor=torch.tensor([(TORQUE_FLOOR * float(np.nan_to_num(
+            np.abs(r.train.tau)).max() + 1e-12)) ** 2 for r in runs], dtype=dt, device=dev))
     x_ev = inputs("eval")
+    phi_ev = basis("eval")
     l_ev = _stack([r.eval.length for r in runs], dt, dev)
 
-    inits = [init_params(x_tr.shape[-1], batch.length.shape[-1], r.seed, options.hidden, dt)
-             for r in runs]
+    m = batch.length.shape[-1]
+    inits = [init_params(x_tr.shape[-1], m, r.seed, options.hidden, dt) for r in runs]
+    if elastic:  # the elastic term starts at zero; it is linear in c, so no symmetry to break
+        for i in inits:
+            i["c"] = torch.zeros(len(ELASTIC_BASIS), m, dtype=dt)
     p: Params = {k: torch.stack([i[k] for i in inits]).to(dev).requires_grad_(True)
                  for k in inits[0]}
     opt = make_adam(list(p.values()), options.lr)
@@ -140,7 +175,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                 v.grad = grads[k]
             if options.curve_every and epoch % options.curve_every == 0:
                 curve_e.append(epoch)
-                curve_v.append(_eval_loss(p, x_ev, l_ev, ls))
+                curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
                 curve_t.append(lb)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
@@ -148,7 +183,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             progress(epoch + 1)
 
     with torch.no_grad():
-        ev = _eval_loss(best_p, x_ev, l_ev, ls).cpu().numpy()
+        ev = _eval_loss(best_p, x_ev, phi_ev, l_ev, ls).cpu().numpy()
         curve = torch.stack(curve_v).cpu().numpy() if curve_v else np.zeros((0, r_n))
         curve_tr = torch.stack(curve_t).cpu().numpy() if curve_t else np.zeros((0, r_n))
     seconds = time.perf_counter() - t0
