@@ -15,6 +15,10 @@ Structures (``meta["structure"]``):
 - ``series-elastic`` — l = g(θ) + e(f): the same network on θ only, plus a per-muscle
   elastic term e_m(f_m) = l_s·Σ_k c_km φ_k(f_m) with φ = (log1p(f)/log1p(f_s), f/f_s),
   so e(0) = 0 and G = ∂g/∂θ does not depend on f (a wire in series with a spring).
+
+With a geometric prior (tensors ``prior.*``, :mod:`pimbs_learn.prior`) the robot
+description's model length h_geom(θ) − log1p(f)/K and its analytic G_geom are added: the
+network is a correction.
 """
 
 from __future__ import annotations
@@ -23,6 +27,9 @@ import math
 from typing import Any
 
 import torch
+
+from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
+from pimbs_learn.prior import GeometricPrior
 
 MLP, SERIES_ELASTIC = "mlp", "series-elastic"
 STRUCTURES = (MLP, SERIES_ELASTIC)
@@ -62,6 +69,9 @@ class SchemaGraph(torch.nn.Module):
         self.elastic = self.structure == SERIES_ELASTIC
         self.register_buffer("c", params["c"].detach().clone() if self.elastic
                              else torch.zeros(len(ELASTIC_BASIS), self.n_muscles, dtype=dt))
+        prior = {k[len(PRIOR_PREFIX):]: v for k, v in params.items()
+                 if k.startswith(PRIOR_PREFIX)}
+        self.prior = GeometricPrior(prior) if prior else None
         # θ columns of W1 in physical units: ∂z1/∂θ = W1θ / θ_s, stored transposed (N, H)
         self.register_buffer("w1_theta_t", (self.w1[:, :self.n_joints]
                                             * self.theta_inv).mT.contiguous())
@@ -80,4 +90,8 @@ class SchemaGraph(torch.nn.Module):
         t1 = self.w1_theta_t * (1 - a1 * a1).unsqueeze(-2)
         t2 = (t1 @ self.w2.mT) * (1 - a2 * a2).unsqueeze(-2)
         g = (t2 @ self.w3.mT).mT * self.length_scale.unsqueeze(-1)  # (B, M, N)
-        return out * self.length_scale, g
+        length = out * self.length_scale
+        if self.prior is not None:
+            h_geom, g_geom = self.prior(theta, tension)
+            return length + h_geom, g + g_geom
+        return length, g

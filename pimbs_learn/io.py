@@ -19,6 +19,8 @@ from safetensors.numpy import load_file, save_file
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES, SchemaGraph
 from pimbs_learn.model import PARAM_NAMES, Params, Scaling
+from pimbs_learn.prior import KEYS as PRIOR_KEYS
+from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import TrainResult
 
 WEIGHTS, META = "model.safetensors", "model.json"
@@ -36,6 +38,9 @@ def model_meta(result: TrainResult) -> dict[str, Any]:
         "muscles": list(run.train.muscles), "map": run.map_name,
         "inputs": "theta" if not run.atl else "theta+tension",
         "structure": run.structure,
+        "prior": ({"kind": "geometric", "robot": run.prior_robot,
+                   "rule": "length = h_geom(theta) + learned; G = G_geom + learned"}
+                  if run.prior is not None else None),
         "architecture": {"layers": [int(w["w1"].shape[1]), int(w["w1"].shape[0]),
                                     int(w["w2"].shape[0]), int(w["w3"].shape[0])],
                          "activation": "tanh after layers 1 and 2"},
@@ -53,17 +58,28 @@ def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] |
     """Write the selected weights and their description to ``out_dir``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    save_file({k: np.ascontiguousarray(v, dtype=np.float32)
-               for k, v in result.params.items()}, str(d / WEIGHTS))
+    save_file({k: _stored(k, v) for k, v in result.params.items()}, str(d / WEIGHTS))
     meta = {**model_meta(result), **(extra or {})}
     (d / META).write_text(json.dumps(meta, indent=2) + "\n")
     return d
 
 
+def _stored(name: str, v: np.ndarray) -> np.ndarray:
+    """Network weights as float32; the geometric prior's constants exactly (float64, int64)."""
+    if name.startswith(PRIOR_PREFIX):
+        return np.ascontiguousarray(v, dtype=np.int64 if v.dtype.kind in "iu" else np.float64)
+    return np.ascontiguousarray(v, dtype=np.float32)
+
+
+def _tensor(v: np.ndarray) -> torch.Tensor:
+    """float64 for arithmetic, int64 for the prior's index arrays."""
+    return torch.from_numpy(np.ascontiguousarray(
+        v, dtype=np.int64 if v.dtype.kind in "iu" else np.float64))
+
+
 def schema_from_result(result: TrainResult) -> BodySchema:
     """The in-memory model of a training result (as if saved and loaded)."""
-    params = {k: torch.from_numpy(v.astype(np.float64)) for k, v in result.params.items()}
-    return BodySchema(params, model_meta(result))
+    return BodySchema({k: _tensor(v) for k, v in result.params.items()}, model_meta(result))
 
 
 class BodySchema:
@@ -150,10 +166,12 @@ def load_body_schema(model_dir: str | Path) -> BodySchema:
         raise LearnError(f"{d / META}: unknown structure {structure!r} (this PIMBS reads "
                          f"{', '.join(STRUCTURES)}); update PIMBS")
     names = PARAM_NAMES + (("c",) if structure == SERIES_ELASTIC else ())
+    if meta.get("prior"):
+        names += tuple(PRIOR_PREFIX + k for k in PRIOR_KEYS)
     missing = [k for k in names if k not in arrays]
     if missing:
         raise LearnError(f"{d / WEIGHTS}: missing tensors {missing}")
-    params = {k: torch.from_numpy(arrays[k].astype(np.float64)) for k in names}
+    params = {k: _tensor(arrays[k]) for k in names}
     atl_inputs = meta["map"] == "atl" and structure == MLP
     n_in = len(meta["joints"]) + (len(meta["muscles"]) if atl_inputs else 0)
     if params["w1"].shape[1] != n_in or params["w3"].shape[0] != len(meta["muscles"]):

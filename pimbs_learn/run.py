@@ -11,7 +11,7 @@ the weights before the e-th optimiser step, i.e. the weights that produced that 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,10 @@ class Run:
     seed: int = 0
     atl: bool = True
     structure: str = MLP  # see pimbs_learn.graph
+    # constants of the geometric model (pimbs_learn.prior) when it is the prior:
+    # l = h_geom(θ) + learned correction; None: no prior
+    prior: dict[str, np.ndarray] | None = field(default=None, compare=False)
+    prior_robot: str | None = None
 
     @property
     def map_name(self) -> str:
@@ -57,6 +61,24 @@ class Run:
             raise LearnError("the series-elastic structure is an ATL-Map (it needs tension)")
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
+
+    def residual(self) -> Run:
+        """The run the network learns: with a prior, lengths minus the model's and τ plus
+        G_geomᵀf (so −(G_geom + ∂r/∂θ)ᵀf = τ is −(∂r/∂θ)ᵀf = τ + G_geomᵀf); else itself."""
+        if self.prior is None:
+            return self
+        from pimbs_learn.prior import GeometricPrior
+
+        geo = GeometricPrior.from_numpy(self.prior)
+
+        def minus_prior(s: Samples) -> Samples:
+            with torch.no_grad():
+                h, g = (t.numpy() for t in geo(torch.from_numpy(s.theta),
+                                                torch.from_numpy(s.tension)))
+            return replace(s, length=s.length - h,
+                           tau=s.tau + np.einsum("bmn,bm->bn", g, s.tension))
+
+        return replace(self, train=minus_prior(self.train), eval=minus_prior(self.eval))
 
     def scaling(self) -> Scaling:
         t = self.train
@@ -114,6 +136,7 @@ class TrainResult:
             "alpha": self.run.loss.alpha,
             "weighting": self.run.loss.weighting,
             "structure": self.run.structure,
+            "prior": self.run.prior_robot,
             "map": self.run.map_name,
             "seed": self.run.seed,
         }

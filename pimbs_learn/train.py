@@ -25,6 +25,7 @@ from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
 from pimbs_learn.objective import Batch, elastic_length, objective_and_grads
+from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
 
 _EVAL_CHUNK = 2048  # eval rows per matmul; bounds memory for large evaluation sets
@@ -96,6 +97,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                ) -> list[TrainResult]:
     """Train all runs together; each gets its own init (its seed), data, loss and α."""
     _check_stackable(runs)
+    given, runs = runs, [r.residual() for r in runs]
     options = options or TrainOptions()
     dev, dt = options.torch_device(), options.dtype
     t0 = time.perf_counter()
@@ -150,9 +152,12 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     m = batch.length.shape[-1]
     inits = [init_params(x_tr.shape[-1], m, r.seed, options.hidden, dt) for r in runs]
-    if elastic:  # the elastic term starts at zero; it is linear in c, so no symmetry to break
-        for i in inits:
+    for r, i in zip(runs, inits, strict=True):
+        if elastic:  # linear in c: starting at zero breaks no symmetry
             i["c"] = torch.zeros(len(ELASTIC_BASIS), m, dtype=dt)
+        if r.prior is not None:  # start exactly at the geometric model
+            i["w3"].zero_()
+            i["b3"].zero_()
     p: Params = {k: torch.stack([i[k] for i in inits]).to(dev).requires_grad_(True)
                  for k in inits[0]}
     opt = make_adam(list(p.values()), options.lr)
@@ -189,13 +194,20 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     seconds = time.perf_counter() - t0
     best_np, epoch_np = best.cpu().numpy(), best_epoch.cpu().numpy()
     weights = {k: v.cpu().float().numpy() for k, v in best_p.items()}
-    return [TrainResult(run=r, params={k: w[i] for k, w in weights.items()},
+
+    def params_of(i: int, r: Run) -> dict[str, np.ndarray]:
+        out = {k: w[i] for k, w in weights.items()}
+        if r.prior is not None:
+            out.update({PRIOR_PREFIX + k: v for k, v in r.prior.items()})
+        return out
+
+    return [TrainResult(run=r, params=params_of(i, r),
                         scaling=scalings[i], best_epoch=int(epoch_np[i]),
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
                         epochs=options.epochs, seconds=seconds,
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
-            for i, r in enumerate(runs)]
+            for i, r in enumerate(given)]
 
 
 def train(run: Run, options: TrainOptions | None = None,
