@@ -20,6 +20,7 @@ within it (iteratively re-weighted least squares).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -60,11 +61,18 @@ class Batch:
         return self.auto is not None and bool((self.auto != 0).any())
 
 
+# The trainer holds the elastic coefficients as c / ELASTIC_GAIN: Adam moves every
+# parameter by about lr per epoch, and a coefficient of order 0.1–1 must settle within tens
+# of epochs, before the network's bias b3 and curvature absorb the spring's share of the
+# lengths. Saved models hold c itself.
+ELASTIC_GAIN = float(os.environ.get("PIMBS_ELASTIC_GAIN", "30"))
+
+
 def elastic_length(p: Params, phi: torch.Tensor | None, ls: torch.Tensor) -> torch.Tensor | float:
     """e(f) = l_s·Σ_k c_k φ_k(f), (R, B+1, M), or 0 without the series-elastic term."""
     if phi is None:
         return 0.0
-    return (phi * p["c"].unsqueeze(-3)).sum(dim=-2) * ls
+    return (phi * (ELASTIC_GAIN * p["c"]).unsqueeze(-3)).sum(dim=-2) * ls
 
 
 def predicted_length(p: Params, a2: torch.Tensor, batch: Batch) -> torch.Tensor:
@@ -157,5 +165,5 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
              "b2": dz2.sum(dim=1, keepdim=True), "w3": g_w3,
              "b3": do.sum(dim=1, keepdim=True)}
     if batch.phi is not None:
-        grads["c"] = (do.unsqueeze(-2) * batch.phi).sum(dim=1)
+        grads["c"] = ELASTIC_GAIN * (do.unsqueeze(-2) * batch.phi).sum(dim=1)
     return lb, grads

@@ -24,7 +24,7 @@ import torch
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
-from pimbs_learn.objective import Batch, elastic_length, objective_and_grads
+from pimbs_learn.objective import ELASTIC_GAIN, Batch, elastic_length, objective_and_grads
 from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
 
@@ -197,6 +197,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     def params_of(i: int, r: Run) -> dict[str, np.ndarray]:
         out = {k: w[i] for k, w in weights.items()}
+        if "c" in out:
+            out["c"] = out["c"] * np.float32(ELASTIC_GAIN)
         if r.prior is not None:
             out.update({PRIOR_PREFIX + k: v for k, v in r.prior.items()})
         return out
