@@ -23,7 +23,6 @@ network is a correction.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import torch
@@ -38,8 +37,9 @@ ELASTIC_BASIS = ("log1p(f)/log1p(f_s)", "f/f_s")
 
 def elastic_basis(f: torch.Tensor, tension_scale: torch.Tensor) -> torch.Tensor:
     """φ(f), (..., K, M): each zero at f = 0 and about 1 at f = f_s."""
-    return torch.stack([torch.log1p(f) / math.log1p(float(tension_scale.max())),
-                        f / tension_scale], dim=-2)
+    return torch.stack([torch.log1p(f.clamp(min=0)) / torch.log1p(tension_scale),
+                        f / tension_scale],
+                       dim=-2)
 
 
 class SchemaGraph(torch.nn.Module):
@@ -74,22 +74,23 @@ class SchemaGraph(torch.nn.Module):
         self.prior = GeometricPrior(prior) if prior else None
         # θ columns of W1 in physical units: ∂z1/∂θ = W1θ / θ_s, stored transposed (N, H)
         self.register_buffer("w1_theta_t", (self.w1[:, :self.n_joints]
-                                            * self.theta_inv).mT.contiguous())
+                                            * self.theta_inv).transpose(-1, -2).contiguous())
 
     def forward(self, theta: torch.Tensor, tension: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         x = theta * self.theta_inv
         if self.atl and not self.elastic:
             x = torch.cat([x, tension / self.tension_scale], dim=-1)
-        a1 = torch.tanh(x @ self.w1.mT + self.b1)
-        a2 = torch.tanh(a1 @ self.w2.mT + self.b2)
-        out = a2 @ self.w3.mT + self.b3
+        a1 = torch.tanh(x @ self.w1.transpose(-1, -2) + self.b1)
+        a2 = torch.tanh(a1 @ self.w2.transpose(-1, -2) + self.b2)
+        out = a2 @ self.w3.transpose(-1, -2) + self.b3
         if self.elastic:
             out = out + (elastic_basis(tension, self.tension_scale) * self.c).sum(dim=-2)
         # forward mode: tangents (B, N, H) of the hidden layers w.r.t. each joint
         t1 = self.w1_theta_t * (1 - a1 * a1).unsqueeze(-2)
-        t2 = (t1 @ self.w2.mT) * (1 - a2 * a2).unsqueeze(-2)
-        g = (t2 @ self.w3.mT).mT * self.length_scale.unsqueeze(-1)  # (B, M, N)
+        t2 = (t1 @ self.w2.transpose(-1, -2)) * (1 - a2 * a2).unsqueeze(-2)
+        g = (t2 @ self.w3.transpose(-1, -2)).transpose(-1, -2) \
+            * self.length_scale.unsqueeze(-1)  # (B, M, N)
         length = out * self.length_scale
         if self.prior is not None:
             h_geom, g_geom = self.prior(theta, tension)

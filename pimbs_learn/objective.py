@@ -108,8 +108,27 @@ def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     return total, lb
 
 
-def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
-    """L_basic (R,) and ∂(Σ_runs L_train)/∂p, by reverse-mode written out by hand.
+def selection_score(batch: Batch, lb: torch.Tensor, residual: torch.Tensor | None
+                    ) -> torch.Tensor:
+    """(R,) what the selection rule minimises: L_basic (the paper's rule), or with the
+    automatic weight the profiled negative log-likelihood per length observation,
+    log max(mse_l, floor) + (N/M)·log max(mse_τ, floor) — the quantity that weight descends,
+    so the epoch kept is the one that best explains lengths *and* torques."""
+    if not batch.use_auto or residual is None or os.environ.get("PIMBS_SELECT") == "basic":
+        return lb
+    assert batch.auto is not None and batch.length_floor is not None
+    assert batch.torque_floor is not None
+    m, n = batch.length.shape[-1], batch.tau.shape[-1]
+    mse_t = (residual * residual).mean(dim=(-2, -1))
+    nll = torch.log(torch.maximum(lb, batch.length_floor)) + (n / m) * torch.log(
+        torch.maximum(mse_t, batch.torque_floor))
+    return torch.where(batch.auto != 0, nll, lb)
+
+
+def objective_and_grads(p: Params, batch: Batch
+                        ) -> tuple[torch.Tensor, Params, torch.Tensor]:
+    """L_basic (R,), ∂(Σ_runs L_train)/∂p by reverse mode written out by hand, and the
+    selection score (R,) of these weights (:func:`selection_score`).
 
     Forward: z1 = x W1ᵀ+b1, a1 = tanh z1, z2 = a1 W2ᵀ+b2, a2 = tanh z2, l = (a2 W3ᵀ+b3)·l_s.
     PINN branch (rows < B): v = f·l_s, q2 = (v W3)·s2, q1 = (q2 W2)·s1, g = (q1 W1θ)·θ_inv,
@@ -132,6 +151,7 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
     da2 = do @ w3
     g_w3 = do.mT @ a2
 
+    res = None
     if batch.use_pinn:
         v = batch.tension * ls
         p2 = v @ w3
@@ -166,4 +186,4 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
              "b3": do.sum(dim=1, keepdim=True)}
     if batch.phi is not None:
         grads["c"] = ELASTIC_GAIN * (do.unsqueeze(-2) * batch.phi).sum(dim=1)
-    return lb, grads
+    return lb, grads, selection_score(batch, lb, res)

@@ -73,6 +73,13 @@ def _rodrigues(axis: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     return torch.eye(3, dtype=axis.dtype) + s * k + (1 - c) * (k @ k)
 
 
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a × b over the last axis (broadcasting), written out: exports to any ONNX opset."""
+    return torch.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                        a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                        a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], dim=-1)
+
+
 class GeometricPrior(torch.nn.Module):
     """θ [B, N], f [B, M] → (l_model [B, M] m, G_geom [B, M, N] m/rad)."""
 
@@ -98,19 +105,19 @@ class GeometricPrior(torch.nn.Module):
 
     def forward(self, theta: torch.Tensor, tension: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        b = theta.shape[0]
+        zero = theta[:, :1] * 0  # (B, 1): batch-sized zeros by broadcasting, no shape ops
         rots, poss, omegas = [], [], []
         for j, (parent, col) in enumerate(zip(self._parent, self._qcol, strict=True)):
-            if j == 0:
-                rots.append(self.rot0[0].expand(b, 3, 3))
-                poss.append(self.pos0[0].expand(b, 3))
-                omegas.append(self.axis[0].expand(b, 3))
+            if j == 0:  # the world frame
+                rots.append(zero.unsqueeze(-1) + self.rot0[0])
+                poss.append(zero + self.pos0[0])
+                omegas.append(zero + self.axis[0])
                 continue
             r_p, p_p = rots[parent], poss[parent]
             r_fixed = r_p @ self.rot0[j]
             poss.append((r_p @ self.pos0[j].unsqueeze(-1)).squeeze(-1) + p_p)
             omegas.append((r_fixed @ self.axis[j].unsqueeze(-1)).squeeze(-1))
-            q = theta[:, col] if col >= 0 else torch.zeros_like(theta[:, 0])
+            q = theta[:, col] if col >= 0 else zero[:, 0]
             rots.append(r_fixed @ _rodrigues(self.axis[j], q))
         rot = torch.stack(rots, dim=1)  # (B, J, 3, 3)
         pos = torch.stack(poss, dim=1)  # (B, J, 3)
@@ -119,12 +126,14 @@ class GeometricPrior(torch.nn.Module):
             + pos[:, self.via_joint]  # (B, V, 3)
         d = pts[:, self.seg_b] - pts[:, self.seg_a]
         seg_len = torch.sqrt((d * d).sum(-1))  # (B, S)
-        h = seg_len @ self.seg_muscle.mT - self.h0 - torch.log1p(tension.clamp(min=0)) / self.K
+        h = seg_len @ self.seg_muscle.transpose(-1, -2) - self.h0 \
+            - torch.log1p(tension.clamp(min=0)) / self.K
         # dp_v/dq_k = ω_k × (p_v − o_k) where joint k supports the via point's joint
         rel = pts.unsqueeze(2) - pos.unsqueeze(1)  # (B, V, J, 3)
-        dp = torch.linalg.cross(omega.unsqueeze(1).expand_as(rel), rel, dim=-1)
-        dp = dp * self.supports.mT[self.via_joint].unsqueeze(0).unsqueeze(-1)  # (B, V, J, 3)
-        dp_theta = (dp.mT @ self.joint_to_theta)  # (B, V, 3, N)
+        dp = _cross(omega.unsqueeze(1), rel)
+        moved = self.supports.transpose(-1, -2)[self.via_joint]  # (V, J)
+        dp = dp * moved.unsqueeze(0).unsqueeze(-1)  # (B, V, J, 3)
+        dp_theta = (dp.transpose(-1, -2) @ self.joint_to_theta)  # (B, V, 3, N)
         u = d / seg_len.unsqueeze(-1)
         dlen = (u.unsqueeze(-1) * (dp_theta[:, self.seg_b] - dp_theta[:, self.seg_a])).sum(-2)
         return h, self.seg_muscle @ dlen  # (B, M), (B, M, N)

@@ -3,7 +3,9 @@
 Shared by the fast trainer and the reference so that both consume and report exactly the
 same things, and the benchmark can compare them field by field.
 
-Selection rule (paper): the model kept is the one of the epoch with the lowest *training*
+Selection rule (paper; with the automatic physics weight the profiled likelihood of lengths
+and torques replaces L_basic, see ``objective.selection_score``): the model kept is the one
+of the epoch with the lowest *training*
 L_basic (first such epoch on ties); its L_eval is the reported ``eval_loss``. "Epoch e" means
 the weights before the e-th optimiser step, i.e. the weights that produced that epoch's loss.
 """

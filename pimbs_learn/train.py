@@ -162,7 +162,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                  for k in inits[0]}
     opt = make_adam(list(p.values()), options.lr)
     best_p = {k: v.detach().clone() for k, v in p.items()}
-    best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)
+    best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)  # selection score
+    best_lb = torch.full((r_n,), float("inf"), dtype=dt, device=dev)
     best_epoch = torch.zeros(r_n, dtype=torch.long, device=dev)
     on_host = dev.type == "cpu"
     curve_e: list[int] = []
@@ -171,9 +172,10 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     for epoch in range(options.epochs):
         with torch.no_grad():
-            lb, grads = objective_and_grads(p, batch)
-            improved = lb < best
-            best = torch.where(improved, lb, best)
+            lb, grads, score = objective_and_grads(p, batch)
+            improved = score < best
+            best = torch.where(improved, score, best)
+            best_lb = torch.where(improved, lb, best_lb)
             best_epoch = torch.where(improved, epoch, best_epoch)
             _keep_best(p, best_p, improved, on_host)
             for k, v in p.items():
@@ -192,7 +194,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         curve = torch.stack(curve_v).cpu().numpy() if curve_v else np.zeros((0, r_n))
         curve_tr = torch.stack(curve_t).cpu().numpy() if curve_t else np.zeros((0, r_n))
     seconds = time.perf_counter() - t0
-    best_np, epoch_np = best.cpu().numpy(), best_epoch.cpu().numpy()
+    best_np, epoch_np = best_lb.cpu().numpy(), best_epoch.cpu().numpy()
     weights = {k: v.cpu().float().numpy() for k, v in best_p.items()}
 
     def params_of(i: int, r: Run) -> dict[str, np.ndarray]:
