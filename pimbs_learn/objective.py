@@ -20,7 +20,6 @@ within it (iteratively re-weighted least squares).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -65,7 +64,7 @@ class Batch:
 # parameter by about lr per epoch, and a coefficient of order 0.1–1 must settle within tens
 # of epochs, before the network's bias b3 and curvature absorb the spring's share of the
 # lengths. Saved models hold c itself.
-ELASTIC_GAIN = float(os.environ.get("PIMBS_ELASTIC_GAIN", "30"))
+ELASTIC_GAIN = 30.0
 
 
 def elastic_length(p: Params, phi: torch.Tensor | None, ls: torch.Tensor) -> torch.Tensor | float:
@@ -114,7 +113,7 @@ def selection_score(batch: Batch, lb: torch.Tensor, residual: torch.Tensor | Non
     automatic weight the profiled negative log-likelihood per length observation,
     log max(mse_l, floor) + (N/M)·log max(mse_τ, floor) — the quantity that weight descends,
     so the epoch kept is the one that best explains lengths *and* torques."""
-    if not batch.use_auto or residual is None or os.environ.get("PIMBS_SELECT") == "basic":
+    if not batch.use_auto or residual is None:
         return lb
     assert batch.auto is not None and batch.length_floor is not None
     assert batch.torque_floor is not None
