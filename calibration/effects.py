@@ -41,6 +41,16 @@ DEFAULT_MAGNITUDE = {"tendon_friction": 0.15, "link_mass": 1.3, "tension_offset"
                      "thermal_drift": 0.8, "elastic_stiffness": 0.6, "joint_offset": 0.04,
                      "routing": 0.002}
 T_REF = 25.0  # °C at which loadcells are calibrated
+# magnitude -> (what it is, lowest, highest, lowest excluded): physical and simulable values
+MAGNITUDE_RANGE = {
+    "tendon_friction": ("friction coefficient mu", 0.0, 1.0, False),
+    "link_mass": ("mass scale", 0.0, 10.0, True),
+    "tension_offset": ("loadcell offset [N]", -500.0, 500.0, False),
+    "thermal_drift": ("drift [N/°C]", -50.0, 50.0, False),
+    "elastic_stiffness": ("stiffness scale K_true/K_model", 0.0, 10.0, True),
+    "joint_offset": ("joint zero offset [rad]", -0.5, 0.5, False),
+    "routing": ("via-point shift [m]", 0.0, 0.02, False),
+}
 
 
 class EffectSpecError(ValueError):
@@ -174,7 +184,8 @@ def parse_effect(spec: str, seed: int = 0) -> Effect:
     name = ALIASES.get(name.strip(), name.strip())
     if name not in EFFECT_NAMES:
         raise EffectSpecError(f"unknown effect '{name}' in '{spec}'; choose one of "
-                              f"{', '.join(EFFECT_NAMES)}")
+                              f"{', '.join(EFFECT_NAMES)} (or an alias: "
+                              f"{', '.join(ALIASES)})")
     effect = Effect(name=name, magnitude=DEFAULT_MAGNITUDE[name], seed=seed)
     for i, item in enumerate(p for p in params.split(",") if p.strip()):
         key, eq, value = item.partition("=")
@@ -197,7 +208,21 @@ def parse_effect(spec: str, seed: int = 0) -> Effect:
             raise EffectSpecError(f"'{item}' in '{spec}' is not a number; the form is "
                                   f"NAME[:MAGNITUDE][,muscles=m0+m1][,joints=j][,link=l]"
                                   ) from None
+    _check_magnitude(effect, spec)
     return effect
+
+
+def _check_magnitude(effect: Effect, spec: str) -> None:
+    """Refuse a magnitude outside its physical range before it reaches the physics
+    (a negative mass would only surface as a pinocchio message about inertia)."""
+    what, lo, hi, lo_open = MAGNITUDE_RANGE[effect.name]
+    v = effect.magnitude
+    if np.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi:
+        return
+    bracket = "(" if lo_open else "["
+    raise EffectSpecError(
+        f"'{spec}': {effect.name} {what} must be in {bracket}{lo:g}, {hi:g}], not {v:g} "
+        f"(default {DEFAULT_MAGNITUDE[effect.name]:g})")
 
 
 @dataclass

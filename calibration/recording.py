@@ -13,10 +13,8 @@ disk never leaves a half-written recording where a valid one used to be.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import json
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +23,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from pimbs_calibration.atomic import AtomicWriteError, atomic_file
 
 FORMAT_VERSION = 1
 META_KEY = b"pimbs"
@@ -396,27 +396,14 @@ def write_recording(path: str | Path, data: Mapping[str, Any] | pa.Table,
 
 
 def _atomic_write(table: pa.Table, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "wb") as fh:
+        with atomic_file(path) as fh:
             pq.write_table(table, fh, compression="zstd")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+    except AtomicWriteError as exc:
+        # what to do next depends on the command (collect resumes, simulate reruns)
         raise RecordingWriteError(
-            exc.errno, f"could not write {path}: {exc.strerror or exc}; the recording already "
-                       f"on disk is unchanged (free space / check permissions, then --resume)"
-        ) from exc
-    with contextlib.suppress(OSError):  # make the rename itself durable
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
+            exc.errno, f"could not write {path}: {exc.reason}; the recording already on "
+                       "disk is unchanged") from exc.__cause__
 
 
 class RecordingWriter:

@@ -16,6 +16,7 @@ separate seeded streams, so a concealed and a clean recording of one seed pair b
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,8 +67,13 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
              effects: tuple[Effect, ...] = (), noise: float = 1.0,
              sample_period: float = 4.0,
              start: np.datetime64 = START,
+             progress: Callable[[int], None] | None = None,
              ) -> tuple[dict[str, np.ndarray], dict]:
-    """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording."""
+    """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording.
+
+    ``progress(done)`` is called every 100 samples and at the end (a 5-DOF arm takes
+    about 0.4 ms per sample: 100 000 samples run for most of a minute).
+    """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
     pose_rng = np.random.default_rng([seed, 0])
@@ -101,6 +107,8 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
         out["length"][i] = length + noise_rng.normal(0, sigma.length, m)
         out["temperature"][i] = temperature
         out["tau_gravity"][i] = arm.gravity_torque(theta_meas)
+        if progress is not None and ((i + 1) % 100 == 0 or i + 1 == n_samples):
+            progress(i + 1)
     jitter = noise_rng.uniform(0, 0.5, n_samples) if noise else np.zeros(n_samples)
     times = start + ((np.arange(n_samples) * sample_period + jitter) * 1e6).astype(
         "timedelta64[us]")

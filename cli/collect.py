@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import robot_option, user_errors
+from pimbs_cli.common import check_output, robot_option, user_errors
 
 
 def _default_out(robot: str) -> Path:
@@ -107,6 +107,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     model = ArmModel.load(robot)
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
+    check_output(out, force=True, what="recording")  # no directory made for a mistyped path
     plan = CollectionPlan(model, samples, seed, map_kind)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
@@ -126,7 +127,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
     from rich.console import Console
 
     from pimbs_calibration.recording import RecordingWriteError
-    from pimbs_hw.collection.progress import LiveReporter, summary_lines
+    from pimbs_hw.collection.progress import LiveReporter, LogReporter, summary_lines
     from pimbs_hw.collection.routine import Collector
     from pimbs_hw.collection.session import open_link, stop_advice
     from pimbs_hw.safety import SafetyStop
@@ -141,7 +142,9 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
             collector = Collector(link, model, plan, writer, start, settle, move=moves)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
-            with LiveReporter(console) as reporter:
+            # a live panel on a terminal; plain lines in a log, so a killed run shows progress
+            reporter_type = LiveReporter if console.is_terminal else LogReporter
+            with reporter_type(console) as reporter:
                 collector.reporter = reporter
                 collector.run()
     except KeyboardInterrupt:

@@ -7,9 +7,10 @@ traceback (they are ours to fix).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -82,21 +83,67 @@ class LogProgress:
         self._echo = echo or (lambda line: click.echo(line, err=True))
         self._start = time.monotonic()
         self._last = -float("inf")
+        self._last_line: tuple[int, str] | None = None
 
     def update(self, done: int, extra: str = "", *, final: bool = False) -> None:
         now = time.monotonic()
         if not final and now - self._last < self.every_s:
             return
-        self._last = now
+        if final and self._last_line == (done, extra):
+            return  # the last line printed already says this
+        self._last, self._last_line = now, (done, extra)
         elapsed = now - self._start
         rate = done / elapsed if elapsed > 0 else 0.0
         parts = [f"{self.label}: {done}" + (f"/{self.total}" if self.total else "")
-                 + f" {self.unit}", f"{rate:.3g} {self.unit}/s", f"elapsed {_clock(elapsed)}"]
+                 + f" {self.unit}", f"{_rate(rate)} {self.unit}/s", f"elapsed {_clock(elapsed)}"]
         if self.total and rate > 0 and done < self.total:
             parts.append(f"ETA {_clock((self.total - done) / rate)}")
         if extra:
             parts.append(extra)
         self._echo(", ".join(parts))
+
+
+@contextlib.contextmanager
+def progress(label: str, total: int | None, unit: str, *, console: Any = None,
+             every_s: float = 5.0) -> Iterator[Callable[..., None]]:
+    """``update(done, extra="")`` for a long loop: a transient rich bar on a terminal,
+    :class:`LogProgress` lines otherwise (and a last line however the loop ends).
+
+    ``console`` is the rich console the command prints through (stderr by default); it
+    decides what counts as a terminal, so ``FORCE_TERMINAL``/``NO_COLOR`` are honoured.
+    """
+    from rich.console import Console
+
+    console = console or Console(stderr=True)
+    if console.is_terminal:
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        with Progress(TextColumn("{task.description}"), BarColumn(),
+                      TextColumn(f"{{task.completed}}/{{task.total}} {unit}"),
+                      TimeRemainingColumn(), console=console, transient=True) as bar:
+            task = bar.add_task(label, total=total)
+
+            def draw(done: int, extra: str = "") -> None:
+                bar.update(task, completed=done,
+                           description=f"{label} {extra}" if extra else label)
+
+            yield draw
+        return
+    log = LogProgress(label, total, unit, every_s=every_s)
+    last = [0, ""]
+
+    def line(done: int, extra: str = "") -> None:
+        last[:] = [done, extra]
+        log.update(done, extra)
+
+    try:
+        yield line
+    finally:
+        log.update(last[0], last[1], final=True)
+
+
+def _rate(rate: float) -> str:
+    return f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
 
 
 def _clock(seconds: float) -> str:

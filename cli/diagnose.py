@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import check_output, force_option, user_errors
 
 
 @click.command("diagnose")
@@ -24,22 +24,25 @@ from pimbs_cli.common import user_errors
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path),
               help="write the full result as JSON")
 @click.option("--plots", type=click.Path(file_okay=False, path_type=Path),
-              help="directory for PNG plots")
+              help="directory for PNG plots (its parent must exist)")
 @click.option("--corrected", type=click.Path(dir_okay=False, path_type=Path),
               help="write the real recording with the named effects undone")
+@force_option()
 @user_errors
 def command(real: Path, reference: Path | None, robot: str | None, json_out: Path | None,
-            plots: Path | None, corrected: Path | None) -> None:
+            plots: Path | None, corrected: Path | None, force: bool) -> None:
     """Why does REAL disagree with the simulation? Name the physics the model left out."""
+    from pimbs_calibration.atomic import write_text_atomic
+    from pimbs_learn.diagnosis.plots import PLOT_FILES
     from pimbs_learn.diagnosis.report import text_report
     from pimbs_learn.diagnosis.run import diagnose, write_corrected
 
+    _check_outputs(json_out, plots, corrected, force, PLOT_FILES)
     result, internals = diagnose(
         real, reference, robot, progress=lambda e: click.echo(f"  testing {e} …", err=True))
     click.echo(text_report(result))
     if json_out:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(result, indent=2))
+        write_text_atomic(json_out, json.dumps(result, indent=2) + "\n")
         click.echo(f"\nJSON: {json_out}")
     if plots:
         from pimbs_learn.diagnosis.plots import write_plots
@@ -49,3 +52,17 @@ def command(real: Path, reference: Path | None, robot: str | None, json_out: Pat
     if corrected:
         write_corrected(internals, corrected)
         click.echo(f"corrected recording: {corrected}")
+
+
+def _check_outputs(json_out: Path | None, plots: Path | None, corrected: Path | None,
+                   force: bool, plot_files: tuple[str, ...]) -> None:
+    """Refuse before the diagnosis runs: an output that exists (without --force) or whose
+    directory does not."""
+    if json_out:
+        check_output(json_out, force=force, option="--json")
+    if corrected:
+        check_output(corrected, force=force, what="recording", option="--corrected")
+    if plots:
+        check_output(plots, force=True, option="--plots")  # its parent must exist
+        for name in plot_files if plots.is_dir() else ():
+            check_output(plots / name, force=force, what="plot", option="--plots")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import check_output, force_option, progress, user_errors
 
 
 @click.command("experiment")
@@ -32,27 +32,22 @@ from pimbs_cli.common import user_errors
                    "(the default is the paper's: 1000, 20000 epochs; use it with --device cuda)")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
+@force_option()
 @user_errors
 def command(threads: int | None, epochs: int | None, seeds: int | None, tables: str,
             out_dir: Path, lr: float, device: str, n_train: tuple[int, ...],
-            quick: bool, reduced: bool) -> None:
+            quick: bool, reduced: bool, force: bool) -> None:
     """Reproduce Tables I–III: mean ± std of L_eval^best (×1e5) over seeds, the paired change
     of each method against Basic (95 % CI), L_eval curves and the joint-angle /
     muscle-length figure, written to --out. Tables II–III add the new default of
     `pimbs train` (series-elastic, automatic α) without and with the geometric prior."""
     import torch
     from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
     from rich.table import Table
 
     from pimbs_learn.experiment import (
         change_cells,
+        output_files,
         paper_tables,
         run_table,
         save_outputs,
@@ -66,20 +61,12 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
         torch.set_num_threads(threads)
     epochs = epochs or (300 if quick else 3000 if reduced else 20000)
     seeds = seeds or (2 if quick else 5)
-    try:
-        wanted = {int(s) for s in tables.split(",") if s.strip()}
-    except ValueError as e:
-        raise click.BadParameter(f"'{tables}' is not a list like 1,2,3",
-                                 param_hint="--tables") from e
-    specs = [s for s in paper_tables(quick) if int(s.key[-1]) in wanted]
-    if n_train:
-        specs = [replace(s, n_train=tuple(n for n in s.n_train if n in n_train))
-                 for s in specs]
-        specs = [s for s in specs if s.n_train]
-    if not specs:
-        raise click.BadParameter("no table/N_train left: tables are 1, 2, 3 with N_train "
-                                 "{3, 5, 10}, {5, 10, 30}, {10, 30}", param_hint="--tables")
-    console = Console()
+    specs = _select(paper_tables(quick), tables, n_train)
+    check_output(out_dir, force=True, what="directory")  # its parent must exist
+    if out_dir.is_dir():  # results of an earlier run are not replaced silently
+        for name in output_files(specs):
+            check_output(out_dir / name, force=force, what="result of an earlier experiment")
+    console = Console(soft_wrap=True)  # a log gets whole lines (command lines stay whole)
     options = TrainOptions(epochs=epochs, lr=lr, device=device,
                            curve_every=max(epochs // 200, 1), hidden=256 if reduced else HIDDEN)
     options.torch_device()  # refuse cuda without a GPU before simulating anything
@@ -88,15 +75,17 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
               for spec in specs]
     total = sum(len(items) for _, g in groups for items in g.values()) * epochs
     results = []
-    with Progress(TextColumn("{task.description}"), BarColumn(),
-                  TextColumn("{task.percentage:>5.1f}%"), TimeElapsedColumn(),
-                  TimeRemainingColumn(), console=console) as bar:
-        task = bar.add_task("training", total=total)
+    done = 0
+    with progress("training", total, "epochs", console=console) as update:
         for spec, g in groups:
-            bar.update(task, description=spec.key)
+
+            def advance(k: int, key: str = spec.key) -> None:
+                nonlocal done
+                done += k
+                update(done, key)
+
             results.append(run_table(spec, g, options, stack=device == "cuda",
-                                     on_epochs=lambda k: bar.advance(task, k),
-                                     log=console.log))
+                                     on_epochs=advance, log=console.log))
 
     for t in results:
         table = Table(title=f"{t.spec.title} — L_eval^best ×1e5, {seeds} seeds, "
@@ -113,3 +102,27 @@ def command(threads: int | None, epochs: int | None, seeds: int | None, tables: 
         console.print(table)
     for f in save_outputs(results, out_dir, options, seeds):
         console.print(f"wrote {f}")
+
+
+def _select(specs: list, tables: str, n_train: tuple[int, ...]) -> list:
+    """The tables and N_train columns asked for; a wrong value is blamed on its option."""
+    try:
+        wanted = {int(s) for s in tables.split(",") if s.strip()}
+    except ValueError as e:
+        raise click.BadParameter(f"'{tables}' is not a list like 1,2,3",
+                                 param_hint="--tables") from e
+    keys = {int(s.key[-1]) for s in specs}
+    if not wanted or not wanted <= keys:
+        raise click.BadParameter(f"'{tables}': the tables are 1, 2 and 3",
+                                 param_hint="--tables")
+    specs = [s for s in specs if int(s.key[-1]) in wanted]
+    if not n_train:
+        return specs
+    offered = "; ".join(f"table {s.key[-1]}: {', '.join(map(str, s.n_train))}" for s in specs)
+    kept = [replace(s, n_train=tuple(n for n in s.n_train if n in n_train)) for s in specs]
+    missing = sorted(set(n_train) - {n for s in kept for n in s.n_train})
+    if missing:
+        raise click.BadParameter(
+            f"{', '.join(map(str, missing))} is not a column of the selected tables "
+            f"({offered})", param_hint="--n-train")
+    return [s for s in kept if s.n_train]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import robot_option, user_errors
+from pimbs_cli.common import check_output, force_option, progress, robot_option, user_errors
 
 
 @click.command("simulate")
@@ -20,22 +20,32 @@ from pimbs_cli.common import robot_option, user_errors
               help="write a 'real' recording with this effect present but unlabelled: "
                    "tendon_friction, link_mass, tension_offset, thermal_drift, "
                    "elastic_stiffness, joint_offset, routing (repeatable), e.g. "
-                   "tendon_friction:0.2 or tension_offset:15,muscles=m1")
+                   "tendon_friction:0.2 or tension_offset:15,muscles=m1; aliases: "
+                   "friction, mass, offset, loadcell_offset, drift, stiffness, "
+                   "encoder_offset")
 @click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="sensor noise scale (0: exact data)")
+@force_option()
 @user_errors
 def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
-            conceal: tuple[str, ...], noise: float) -> None:
+            conceal: tuple[str, ...], noise: float, force: bool) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_calibration.effects import parse_effect
-    from pimbs_calibration.recording import write_recording
+    from pimbs_calibration.recording import RecordingWriteError, write_recording
     from pimbs_calibration.simulate import simulate
 
+    check_output(out, force=force, what="recording")
     arm = ArmModel.load(robot)
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
-    data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects, noise=noise)
-    write_recording(out, data, meta)
+    with progress("simulate", samples, "samples") as update:
+        data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects,
+                              noise=noise, progress=update)
+    try:
+        write_recording(out, data, meta)
+    except RecordingWriteError as exc:  # the message names the file; simulate has no resume
+        raise click.ClickException(f"{exc}; free disk space and run the same command "
+                                   "again") from exc
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")

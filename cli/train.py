@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import check_output, force_option, progress, user_errors
 
 LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
 DEFAULT_LOSS = "basic+const+pinn"
@@ -44,19 +44,21 @@ DEFAULT_LOSS = "basic+const+pinn"
                    "null [default: the recording's robot]")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="directory to write the model (model.safetensors + model.json)")
+              help="directory to write the model (model.safetensors + model.json); "
+                   "without it nothing but the metrics is kept")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="write the metrics here")
 @click.option("--reference", is_flag=True,
               help="use the straightforward (slow) trainer instead of the fast one")
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
+@force_option()
 @user_errors
 def command(threads: int | None, data: Path, map_kind: str, loss: str, structure: str,
             alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
             robot: str | None, device: str, out: Path | None, json_path: Path | None,
-            reference: bool) -> None:
+            reference: bool, force: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording).
 
     Default: the series-elastic ATL-Map on top of the robot description's model (when the
@@ -65,10 +67,15 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     one of the epoch with the lowest training L_basic; its L_eval (mean over samples and
     muscles of squared length error, m², ×1e5) is the result.
     """
+    # refuse an output that exists or cannot be written before minutes of training
+    if out is not None and not (out.is_dir() and not any(out.iterdir())):  # empty dir: ok
+        check_output(out, force=force, what="model")
+    if json_path is not None:
+        check_output(json_path, force=force, what="file", option="--json")
     import torch
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.io import save_model
     from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
     from pimbs_learn.reference import train_reference
@@ -78,16 +85,14 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
 
     if threads:
         torch.set_num_threads(threads)
-    console = Console(stderr=True)
+    console = Console(stderr=True, soft_wrap=True)  # a log gets whole lines, not wrapped
     weighting = weighting or ("fixed" if alpha is not None else "auto")
     if alpha is None:
         alpha = 1.0 if weighting == "auto" else DEFAULT_ALPHA
-    notes: list[str] = []
     run = prepare_run(data, LossConfig.parse(loss, alpha, weighting), atl=map_kind == "atl",
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot,
-                      structure=structure, prior=prior and not reference, notes=notes)
-    for note in notes:
-        console.print(note)
+                      structure=structure, prior=prior and not reference,
+                      note=lambda s: console.print(f"note: {s}", markup=False))
     torch.manual_seed(seed)
     options = TrainOptions(epochs=epochs, lr=lr, device=device)
     trainer = train_reference if reference else train
@@ -97,11 +102,11 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
                   f"{f' ({weight})' if run.loss.pinn else ''}: {run.train.n_samples} "
                   f"training / {run.eval.n_samples} evaluation samples, "
                   f"{len(run.train.joints)} joints, {len(run.train.muscles)} muscles")
-    with Progress(TextColumn("training"), BarColumn(), TextColumn("{task.completed}/"
-                  "{task.total} epochs"), TimeRemainingColumn(), console=console,
-                  transient=True) as bar:
-        task = bar.add_task("train", total=epochs)
-        result = trainer(run, options, progress=lambda e: bar.update(task, completed=e))
+    if out is None:
+        console.print("note: no --out, so the model will not be saved (only the metrics "
+                      "are printed); stop now and add --out DIR to keep it", markup=False)
+    with progress("training", epochs, "epochs", console=console) as update:
+        result = trainer(run, options, progress=update)
 
     metrics = result.metrics()
     metrics.update(data=str(data), data_sha256=run.train.sha256,
@@ -121,10 +126,9 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
         save_model(result, out)
         console.print(f"model written to {out}/")
     else:
-        console.print("model not saved (give --out DIR to keep it)")
+        console.print("model not saved (no --out)")
     if json_path is not None:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(metrics, indent=2) + "\n")
+        write_text_atomic(json_path, json.dumps(metrics, indent=2) + "\n")
     click.echo(json.dumps({k: metrics[k] for k in ("eval_loss", "train_loss", "best_epoch",
                                                    "epochs", "seconds", "eval_rms_mm",
                                                    "model_rms_mm") if k in metrics}))

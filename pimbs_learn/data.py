@@ -88,6 +88,23 @@ def load_samples(path: str | Path) -> Samples:
                    sha256=file_sha256(p), path=str(p))
 
 
+def load_robot(robot: str, samples: Samples):
+    """The robot description ``robot`` (name or path), refused unless it is the recording's
+    arm: same joints and muscles in the same order."""
+    from pimbs_calibration.arm_model import ArmModel
+
+    try:
+        arm = ArmModel.load(robot)
+    except Exception as e:  # description errors come in several types; all mean "bad robot"
+        raise LearnError(f"cannot load robot '{robot}': {e}") from e
+    for what, mine, theirs in (("joints", arm.joints, samples.joints),
+                               ("muscles", arm.muscles, samples.muscles)):
+        if tuple(mine) != tuple(theirs):
+            raise LearnError(f"robot '{robot}' has {what} {list(mine)} but "
+                             f"{samples.path or 'the recording'} has {list(theirs)}")
+    return arm
+
+
 def fill_gravity(samples: Samples, robot: str | None) -> Samples:
     """Fill missing τ (null tau_gravity) from the robot's joint model.
 
@@ -102,15 +119,7 @@ def fill_gravity(samples: Samples, robot: str | None) -> Samples:
             f"{samples.path or 'recording'}: tau_gravity is null in {int(missing.sum())} of "
             f"{samples.n_samples} rows and the PINN loss needs it; pass --robot NAME|PATH so "
             "it can be computed from the joint model, or train without 'pinn'")
-    from pimbs_calibration.arm_model import ArmModel
-
-    try:
-        arm = ArmModel.load(robot)
-    except Exception as e:  # description errors come in several types; all mean "bad robot"
-        raise LearnError(f"cannot load robot '{robot}': {e}") from e
-    if tuple(arm.joints) != samples.joints:
-        raise LearnError(f"robot '{robot}' has joints {list(arm.joints)} but the recording "
-                         f"has {list(samples.joints)}")
+    arm = load_robot(robot, samples)
     tau = samples.tau.copy()
     tau[missing] = np.asarray(arm.gravity_torque(samples.theta[missing]), dtype=np.float64)
     return replace(samples, tau=tau)

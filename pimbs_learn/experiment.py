@@ -252,20 +252,36 @@ def results_json(tables: list[TableResult], options: TrainOptions, seeds: int) -
     return out
 
 
+def figure_files(spec: TableSpec) -> list[str]:
+    """The figures of one table: its L_eval curves, and for Table I with N_train = 5 the
+    joint-angle / muscle-length comparison."""
+    names = [f"{spec.key}-curves.png"]
+    if spec.key == "table1" and 5 in spec.n_train:
+        names.append("table1-joint-length.png")
+    return names
+
+
+def output_files(specs: list[TableSpec]) -> list[str]:
+    """Names of the files :func:`save_outputs` writes for these tables (in --out)."""
+    return ["tables.md", "results.json", *(n for s in specs for n in figure_files(s))]
+
+
 def save_outputs(tables: list[TableResult], out_dir: Path, options: TrainOptions,
                  seeds: int) -> list[Path]:
-    """tables.md, results.json and the figures; returns the files written."""
+    """tables.md, results.json and the figures, each written atomically; returns them."""
+    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.figures import plot_curves, plot_joint_length
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    md = out_dir / "tables.md"
-    md.write_text(f"L_eval^best ×1e5 (m²), mean ± std over {seeds} seeds, "
-                  f"{options.epochs} epochs\n\n" + "\n".join(table_markdown(t) for t in tables))
-    js = out_dir / "results.json"
-    js.write_text(json.dumps(results_json(tables, options, seeds), indent=1) + "\n")
+    md, js = out_dir / "tables.md", out_dir / "results.json"
+    write_text_atomic(md, f"L_eval^best ×1e5 (m²), mean ± std over {seeds} seeds, "
+                          f"{options.epochs} epochs\n\n"
+                      + "\n".join(table_markdown(t) for t in tables))
+    write_text_atomic(js, json.dumps(results_json(tables, options, seeds), indent=1) + "\n")
     files = [md, js]
     for t in tables:
-        files.append(plot_curves(t, out_dir / f"{t.spec.key}-curves.png"))
-        if t.spec.key == "table1" and 5 in t.spec.n_train:
-            files.append(plot_joint_length(t, 5, out_dir / "table1-joint-length.png"))
+        curves, *joint_length = figure_files(t.spec)
+        files.append(plot_curves(t, out_dir / curves))
+        if joint_length:
+            files.append(plot_joint_length(t, 5, out_dir / joint_length[0]))
     return files

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from pimbs_learn.experiment import TableResult
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -23,10 +23,23 @@ def _pyplot():
     return plt
 
 
+def save_png(fig, path: Path, dpi: int) -> Path:
+    """Write the figure whole or not at all (a full disk must not leave a truncated PNG
+    that looks like a result) and close it."""
+    from pimbs_calibration.atomic import atomic_file
+
+    try:
+        with atomic_file(path) as fh:
+            fig.savefig(fh, format="png", dpi=dpi)
+    finally:
+        pyplot().close(fig)
+    return Path(path)
+
+
 def plot_curves(t: TableResult, path: Path) -> Path:
     """L_eval (×1e5, log scale) against epoch: mean over seeds (line) and min–max over
     seeds (band), per method, one panel per N_train."""
-    plt = _pyplot()
+    plt = pyplot()
     ns = t.spec.n_train
     fig, axes = plt.subplots(1, len(ns), figsize=(max(5 * len(ns), 7), 4.3),
                              squeeze=False)
@@ -46,12 +59,17 @@ def plot_curves(t: TableResult, path: Path) -> Path:
         ax.set_xlabel("epoch")
         ax.set_ylabel("L_eval ×1e5 [m²]")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"{t.spec.title}\nline: mean, band: min–max over seeds", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    # one legend above the panels (inside one, up to 7 methods hide its curves)
+    handles, names = axes[0][0].get_legend_handles_labels()
+    ncol = min(len(names), 2 * len(ns))  # a single panel is too narrow for 4 columns
+    rows = -(-len(names) // ncol)
+    top = 1 - (0.3 + 0.2 * rows) / fig.get_figheight()
+    fig.suptitle(f"{t.spec.title}   (line: mean, band: min–max over seeds)", fontsize=10,
+                 y=0.995)
+    fig.legend(handles, names, loc="upper center", ncol=ncol, fontsize=8,
+               frameon=False, bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()))
+    fig.tight_layout(rect=(0, 0, 1, top))
+    return save_png(fig, path, dpi=120)
 
 
 def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
@@ -65,7 +83,7 @@ def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_learn.io import schema_from_result
 
-    plt = _pyplot()
+    plt = pyplot()
     arm = ArmModel.load(t.spec.robot)
     labels = list(dict.fromkeys(m.label for m in t.spec.methods))
     nj = arm.n_joints
@@ -94,8 +112,12 @@ def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
             ax.set_ylabel("muscle length [m]")
             ax.grid(alpha=0.3)
         axes[-1][j].set_xlabel(f"{arm.joints[j]} [rad]  (ticks: training θ)")
-    axes[0][0].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    # one legend for all panels, above them: inside a panel it hides the curves
+    handles, names = axes[0][0].get_legend_handles_labels()
+    top = 1 - 0.6 / fig.get_figheight()
+    fig.suptitle(f"{t.spec.title}, N_train = {n}, seed {seed_index}: muscle length against "
+                 "each joint angle (the other joints at 0)", fontsize=10, y=0.998)
+    fig.legend(handles, names, loc="upper center", ncol=arm.n_muscles, fontsize=8,
+               frameon=False, bbox_to_anchor=(0.5, top + 0.45 / fig.get_figheight()))
+    fig.tight_layout(rect=(0, 0, 1, top))
+    return save_png(fig, path, dpi=110)

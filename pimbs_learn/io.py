@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from safetensors.numpy import load_file, save_file
+from safetensors.numpy import load_file, save
 
+from pimbs_calibration.atomic import write_bytes_atomic, write_text_atomic
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES, SchemaGraph
 from pimbs_learn.model import PARAM_NAMES, Params, Scaling
@@ -58,9 +59,10 @@ def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] |
     """Write the selected weights and their description to ``out_dir``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    save_file({k: _stored(k, v) for k, v in result.params.items()}, str(d / WEIGHTS))
+    # each file whole or not at all: a full disk must not leave a truncated model
+    write_bytes_atomic(d / WEIGHTS, save({k: _stored(k, v) for k, v in result.params.items()}))
     meta = {**model_meta(result), **(extra or {})}
-    (d / META).write_text(json.dumps(meta, indent=2) + "\n")
+    write_text_atomic(d / META, json.dumps(meta, indent=2) + "\n")
     return d
 
 

@@ -5,6 +5,7 @@ combinations that cannot work, with a message saying what to do.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from pimbs_learn.data import (
     Samples,
     check_compatible,
     fill_gravity,
+    load_robot,
     load_samples,
     split,
 )
@@ -26,16 +28,24 @@ from pimbs_learn.run import Run
 def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
                 n_train: int | None = None, eval_path: str | Path | None = None,
                 seed: int = 0, robot: str | None = None, structure: str = MLP,
-                prior: bool = False, notes: list[str] | None = None) -> Run:
+                prior: bool = False, note: Callable[[str], None] | None = None) -> Run:
     """Build the run `pimbs train` asked for.
 
     With --eval the model is evaluated on that recording (trained on all of DATA, or on
     n_train rows of it); without, n_train rows are drawn (seeded) and the rest evaluates.
+    A ``robot`` is always checked against DATA; ``note`` hears when it is not needed.
     With ``prior`` the robot description (``robot``, else the recording's robot) is the
-    prior when it loads and matches; otherwise training goes on without one and a line
-    saying why is appended to ``notes``.
+    prior when it loads and matches; otherwise training goes on without one and ``note``
+    hears why.
     """
     samples = load_samples(data)
+    if robot is not None:
+        load_robot(robot, samples)
+        used = (prior and atl) or (loss.pinn and not np.isfinite(samples.tau).all())
+        if note is not None and not used:
+            why = ("DATA has tau_gravity in every row" if loss.pinn
+                   else f"the {loss.name} loss needs no gravity torque")
+            note(f"--robot {robot} matches {samples.path} but is not used: {why}")
     if eval_path is not None:
         ev = load_samples(eval_path)
         check_compatible(samples, ev)
@@ -64,8 +74,8 @@ def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
             arrays = load_prior(name, tr.joints, tr.muscles)
         except PriorUnavailable as e:
             name = None
-            if notes is not None:
-                notes.append(f"no geometric prior: {e}")
+            if note is not None:
+                note(f"no geometric prior: {e}")
     run = Run(tr, ev, loss, seed=seed, atl=atl, structure=structure if atl else MLP,
               prior=arrays, prior_robot=name)
     run.check()

@@ -43,8 +43,8 @@ def _pimbs() -> list[str]:
 def test_installed_command_finds_robot_descriptions_from_any_directory(tmp_path):
     """Run outside the checkout, so a non-editable install must carry calibration/robots."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    out = tmp_path / "sim.parquet"
     for robot in ("two-link-4-muscle", "left-arm-5dof"):
+        out = tmp_path / f"{robot}.parquet"
         r = subprocess.run([*_pimbs(), "simulate", "--robot", robot, "--samples", "5",
                             "--out", str(out)], cwd=tmp_path, env=env, capture_output=True,
                            text=True, timeout=120)

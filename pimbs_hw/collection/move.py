@@ -105,14 +105,21 @@ def take_up_slack(now: Reading, target: Target, cfg: MoveConfig,
 
 
 def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:
-    """Send the commands evenly over the ramp's duration, reading (limits checked) each cycle."""
+    """Send the commands evenly over the ramp's duration, reading (limits checked) each cycle.
+
+    A host that fell behind (descheduled, a slow read) shifts the rest of the schedule instead
+    of sending the missed commands in a burst: the rates are the arm's, whatever the host did.
+    """
     t0 = time.monotonic()
     last = max(len(ramp.commands) - 1, 1)
+    interval = ramp.duration / last
     reading = None
     for k, command in enumerate(ramp.commands):
-        wait = t0 + ramp.duration * k / last - time.monotonic()
+        wait = t0 + interval * k - time.monotonic()
         if wait > 0:
             time.sleep(wait)
+        elif -wait > interval:
+            t0 -= wait  # re-time: this command goes now, the next one an interval later
         link.command(ramp.mode, command)
         reading = link.read()
     assert reading is not None

@@ -6,6 +6,7 @@ fast, when done, is any muscle near its tension ceiling or getting hot, did anyt
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from rich.console import Console, Group
@@ -77,6 +78,54 @@ class LiveReporter:
                    f"{len(s.skipped)} skipped"
         grid.add_row("issues", Text(problems, style="yellow" if s.warnings else "dim"), "")
         return Group(grid)
+
+
+class LogReporter:
+    """Plain progress lines for a log file or pipe (where a live panel draws nothing).
+
+    One complete line for the first sample, then at most one every ``every_s`` seconds and
+    one at the end; warnings as they come. The log of a run killed with ``kill -9`` thus
+    shows how far it got.
+    """
+
+    def __init__(self, console: Console | None = None, title: str = "collect",
+                 every_s: float = 5.0) -> None:
+        self.console = console or Console(stderr=True)
+        self.title, self.every_s = title, every_s
+        self._summary: Summary | None = None
+        self._printed_at = -float("inf")
+        self._printed: int | None = None  # next_sample of the last line printed
+
+    def __enter__(self) -> LogReporter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        s = self._summary
+        if s is not None and self._printed != s.next_sample:
+            self._line(s)
+
+    def sample(self, summary: Summary, row: dict[str, Any]) -> None:
+        self._summary = summary
+        if time.monotonic() - self._printed_at >= self.every_s:
+            self._line(summary)
+
+    def warn(self, summary: Summary, message: str) -> None:
+        self._summary = summary
+        self.console.print(f"warning: {message}", markup=False, highlight=False,
+                           soft_wrap=True)
+
+    def _line(self, s: Summary) -> None:
+        self._printed_at, self._printed = time.monotonic(), s.next_sample
+        parts = [f"{self.title}: {s.next_sample}/{s.total} samples",
+                 f"{s.rate_per_min:.1f} samples/min", f"elapsed {_duration(s.elapsed)}"]
+        if s.eta is not None and s.next_sample < s.total:
+            parts.append(f"ETA {_duration(s.eta)}")
+        if s.written:
+            lo, hi = s.tension_range
+            parts.append(f"tension {lo:.1f}…{hi:.1f} N, max {s.temperature_max:.1f} °C")
+        parts.append(f"{len(s.warnings)} warnings, {s.unsettled} unsettled, "
+                     f"{len(s.skipped)} skipped")
+        self.console.print(", ".join(parts), markup=False, highlight=False, soft_wrap=True)
 
 
 def summary_lines(s: Summary) -> list[str]:

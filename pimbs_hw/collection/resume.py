@@ -44,6 +44,11 @@ def open_recording(path: Path, meta: Mapping[str, Any], resume: bool
     """
     if resume and path.exists():
         existing = read_recording(path).meta
+        if existing.get("generator") != "pimbs collect":
+            made_by = existing.get("generator") or "another tool"
+            raise ResumeError(f"cannot resume {path}: it was written by {made_by}, not by "
+                              "pimbs collect, so there is no collection to continue; choose "
+                              "another --out for a new collection")
         for key in RESUME_KEYS:
             old, new = existing.get(key), meta.get(key)
             if old == new:

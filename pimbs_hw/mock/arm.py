@@ -104,6 +104,7 @@ class MockArm:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._sample = 0
+        self._commanded = False  # commands received since the plant last got them
         self._cycles = 0
         self._t0 = now
         self._active: set[FaultSpec] = set()
@@ -164,6 +165,10 @@ class MockArm:
             except HardwareError as exc:  # a broken link is the host's problem to report
                 log.debug("mock arm link: %s", exc)
                 self._stop.wait(self.tick_s)
+            if self._commanded:
+                self._commanded = False
+                with self._lock:
+                    self._actuate()
             now = time.monotonic()
             if now >= next_tick:
                 self._tick(now)
@@ -182,7 +187,11 @@ class MockArm:
         now = time.monotonic()
         with self._lock:
             self.boards[i].receive(msg, now, self._readings[i])
-            self._actuate()
+        # The plant gets the new commands once the frames that arrived together are all in
+        # (see _run): one host cycle reaches real boards within a fraction of a millisecond,
+        # and the equilibrium solver (tens of ms, more on a loaded machine) must not freeze
+        # the arm on a half-updated set of commands for that long.
+        self._commanded = True
         self._send_status(i, now)
 
     def _tick(self, now: float) -> None:

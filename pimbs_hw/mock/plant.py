@@ -48,6 +48,7 @@ class _Solver:
             self._cond.notify()
 
     def idle(self) -> bool:
+        """No request waiting or being solved: ``target`` answers the latest command."""
         with self._cond:
             return self._pending is None and not self._busy
 
@@ -121,11 +122,25 @@ class Plant:
             and np.all(np.abs(self.state.length - target.length) < tol))
 
     def step(self, dt: float) -> PlantState:
+        """Advance ``dt`` seconds of wall time (× ``speed`` of arm time).
+
+        The arm moves only toward the equilibrium of the commands in force: while the solver
+        still works on newer ones, it holds still (its clock pauses). Moving toward a target
+        solved from older commands would make the simulated arm lag its commands by the
+        solver's wall time, which grows on a loaded machine; with tendon friction that delay
+        closes a loop (friction state → tension target → motion → friction state) that
+        oscillates into the tension ceiling. Pausing keeps the arm's response a function of
+        arm time alone, the same on a fast or a busy host.
+        """
         s, target = self.state, self._solver.target
-        a = 1.0 - np.exp(-dt * self.speed / self.tau_s)
+        if not self._solver.idle():
+            dt_arm = 0.0
+        else:
+            dt_arm = dt * self.speed
+        a = 1.0 - np.exp(-dt_arm / self.tau_s)
         length = s.length + a * (target.length - s.length)
         approach = self._play.update(length)
-        b = 1.0 - np.exp(-dt * self.speed / self.tau_thermal_s)
+        b = 1.0 - np.exp(-dt_arm / self.tau_thermal_s)
         hot = self.ambient_c + self.heat_c_per_n * np.abs(s.tension)
         temperature = s.temperature + b * (hot - s.temperature) + self.heat_rate_c_per_s * dt
         self.state = replace(s, theta=s.theta + a * (target.theta - s.theta),

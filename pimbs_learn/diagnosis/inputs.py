@@ -27,6 +27,7 @@ from pimbs_learn.diagnosis.model import (
 )
 
 DEFAULT_KAPPA = -1e-3  # start of the elasticity fit: K = 1000, physical sign
+MIN_SAMPLES = 30  # paired rows below which physics cannot be told from noise
 
 
 class DiagnosisInputError(ValueError):
@@ -39,6 +40,13 @@ def samples_from(rec: Recording, tau: np.ndarray | None = None) -> Samples:
                    temperature=rec.temperature, approach=rec.approach.astype(float),
                    tau=rec.tau_gravity if tau is None else tau, time=t - t[0],
                    sample=rec.sample)
+
+
+def too_few_samples(path: object, n: int) -> DiagnosisInputError:
+    """The one message for a recording too short to diagnose."""
+    return DiagnosisInputError(
+        f"{path}: {n} samples are too few to tell physics from noise; the diagnosis needs at "
+        f"least {MIN_SAMPLES} paired samples (ideally 200+): collect or simulate more")
 
 
 @dataclass
@@ -58,7 +66,10 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
                     f"{real.path} and {reference.path} describe different arms: {key} "
                     f"{getattr(real, key)} vs {getattr(reference, key)}")
         common, ia, ib = np.intersect1d(real.sample, reference.sample, return_indices=True)
-        if len(common) < 20:
+        if len(common) < MIN_SAMPLES:
+            for rec in (real, reference):
+                if len(rec.sample) < MIN_SAMPLES:
+                    raise too_few_samples(rec.path, len(rec.sample))
             raise DiagnosisInputError(
                 f"{real.path} and {reference.path} share only {len(common)} sample ids; they "
                 "must be recordings of the same commanded poses (same seed)")

@@ -9,7 +9,13 @@ import pyarrow as pa
 
 from pimbs_calibration.recording import Recording, read_recording, write_recording
 from pimbs_learn.diagnosis.fit import fit_effects
-from pimbs_learn.diagnosis.inputs import DiagnosisInputError, build_physics, pair
+from pimbs_learn.diagnosis.inputs import (
+    MIN_SAMPLES,
+    DiagnosisInputError,
+    build_physics,
+    pair,
+    too_few_samples,
+)
 from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, Fit, apply_effects, evaluate
 from pimbs_learn.diagnosis.report import effect_entry
@@ -46,9 +52,8 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
         if ref_rec is None:
             kappa = -1.0 / arm.K  # PIMBS' own sign convention (l = h − Δn)
     paired = pair(real_rec, ref_rec, arm)
-    if paired.real.n < 30:
-        raise DiagnosisInputError(f"{real_rec.path}: {paired.real.n} samples are too few to "
-                                  "tell physics from noise; collect at least 30 (ideally 200+)")
+    if paired.real.n < MIN_SAMPLES:
+        raise too_few_samples(real_rec.path, paired.real.n)
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
     null = fit_effects(physics, data, [], key="full")
