@@ -39,6 +39,8 @@ DEFAULT_LOSS = "basic+const+pinn"
               help="seeds the training draw and the initial weights")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
               show_default=True, help="Adam learning rate")
+@click.option("--hidden", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="width of the two hidden layers (the paper's 1000)")
 @click.option("--robot", default=None,
               help="robot NAME|PATH: the prior, and τ where the recording's tau_gravity is "
                    "null [default: the recording's robot]")
@@ -57,7 +59,7 @@ DEFAULT_LOSS = "basic+const+pinn"
 def command(threads: int | None, data: Path, map_kind: str, loss: str, structure: str,
             alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
-            robot: str | None, device: str, out: Path | None, json_path: Path | None,
+            hidden: int, robot: str | None, device: str, out: Path | None, json_path: Path | None,
             reference: bool, force: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording).
 
@@ -94,7 +96,7 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
                       structure=structure, prior=prior and not reference,
                       note=lambda s: console.print(f"note: {s}", markup=False))
     torch.manual_seed(seed)
-    options = TrainOptions(epochs=epochs, lr=lr, device=device)
+    options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden)
     trainer = train_reference if reference else train
     weight = (f"automatic α ×{alpha:g}" if weighting == "auto" else f"α={alpha:g}")
     console.print(f"{map_kind.upper()}-Map ({run.structure}"

@@ -188,6 +188,7 @@ def test_cli_default_uses_the_prior_and_reports_the_model_error(tmp_path) -> Non
     # exact, and the learned correction must improve on it
     rec = _recording(tmp_path, effects=(parse_effect("routing:0.003"),))
     out = CliRunner().invoke(command, [str(rec), "--n-train", "30", "--epochs", "300",
+                                       "--hidden", "64", "--lr", "3e-3",
                                        "--threads", "1", "--json", str(tmp_path / "m.json"),
                                        "--out", str(tmp_path / "m")])
     assert out.exit_code == 0, out.output
@@ -199,7 +200,8 @@ def test_cli_default_uses_the_prior_and_reports_the_model_error(tmp_path) -> Non
     assert model.graph.prior is not None
     # the paper's method stays one option set away, with no prior
     out = CliRunner().invoke(command, [str(rec), "--n-train", "10", "--epochs", "5",
-                                       "--structure", "mlp", "--no-prior", "--alpha", "1e-5",
+                                       "--hidden", "32", "--structure", "mlp", "--no-prior",
+                                       "--alpha", "1e-5",
                                        "--json", str(tmp_path / "p.json")])
     assert out.exit_code == 0, out.output
     paper = json.loads((tmp_path / "p.json").read_text())
@@ -216,7 +218,7 @@ def test_cli_without_a_known_robot_trains_without_prior(tmp_path) -> None:
     rec = tmp_path / "foreign.parquet"
     record(rec, 30, 0)
     out = CliRunner().invoke(command, [str(rec), "--n-train", "10", "--epochs", "5",
-                                       "--json", str(tmp_path / "m.json")])
+                                       "--hidden", "32", "--json", str(tmp_path / "m.json")])
     assert out.exit_code == 0, out.output
     assert "no geometric prior" in out.output
     assert json.loads((tmp_path / "m.json").read_text())["prior"] is None
