@@ -15,11 +15,12 @@ from pimbs_learn.graph import SERIES_ELASTIC, SchemaGraph, elastic_basis
 from pimbs_learn.io import load_body_schema, save_model, schema_from_result
 from pimbs_learn.losses import LossConfig
 from pimbs_learn.model import init_params
-from pimbs_learn.objective import Batch, objective, objective_and_grads, pinn_weight
+from pimbs_learn.objective import Batch, pinn_weight
 from pimbs_learn.paired import paired_change
 from pimbs_learn.run import Run, TrainOptions
 from pimbs_learn.synthetic import synthetic_samples
 from pimbs_learn.train import train
+from tests.test_learn import assert_hand_written_gradient
 
 torch.set_num_threads(1)
 F64 = torch.float64
@@ -73,12 +74,7 @@ def test_hand_written_gradient_with_elastic_term_and_auto_weight() -> None:
                   auto=torch.tensor([1.0, 0.0, 1.0], dtype=F64),
                   length_floor=torch.full((r,), 1e-12, dtype=F64),
                   torque_floor=torch.full((r,), 1e-8, dtype=F64))
-    total, lb = objective(p, batch)
-    want = torch.autograd.grad(total.sum(), list(p.values()))
-    lb2, got, _ = objective_and_grads({k: v.detach() for k, v in p.items()}, batch)
-    torch.testing.assert_close(lb2, lb.detach())
-    for k, w in zip(p, want, strict=True):
-        torch.testing.assert_close(got[k], w, rtol=1e-10, atol=1e-14)
+    assert_hand_written_gradient(p, batch)
 
 
 def test_auto_weight_is_the_likelihood_balance_and_backs_off() -> None:
