@@ -54,7 +54,7 @@ def main() -> None:
             n += 1
         wall = time.perf_counter() - wall0
         cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
-        raw = int(driver._raw(tension)[0])
+        raw = driver.protocol_of(0).raw(0, tension[0])
         per_cycle, periodic = _cycle_bits(driver, raw)
     rate = n / wall
     load = bus_load(rate * per_cycle + periodic, 1.0)

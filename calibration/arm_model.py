@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 import quadprog
 
-from pimbs_calibration.description import RobotDescription, load_robot
+from pimbs_calibration.description import RobotDescription, load_robot, reduced_model
 
 
 class InfeasiblePoseError(RuntimeError):
@@ -88,15 +88,21 @@ class ArmModel:
         self.joint_range = robot.joint_range.copy()
         self.K = np.array([m.K for m in robot.muscles], dtype=np.float64)
         self.f_max = np.array([m.f_max for m in robot.muscles], dtype=np.float64)
-        self._model = pin.buildModelFromUrdf(str(robot.urdf_path))
+        reduced = reduced_model(robot)  # joints not driven are locked, mimics follow
+        self._model = reduced.model
+        self._S, self._offset = reduced.S, reduced.offset  # q = S theta + offset
         self._data = self._model.createData()
         # pinocchio writes its results into _data: serialise users (the mock bus solves in a
         # thread while other threads may query the same model).
         self._lock = threading.Lock()
         self._build_index()
-        self.joint_limits = np.stack([self._model.lowerPositionLimit[self._iq],
-                                      self._model.upperPositionLimit[self._iq]], axis=1)
+        iq = [self._model.joints[self._model.getJointId(j)].idx_q for j in self.joints]
+        self.joint_limits = np.stack([self._model.lowerPositionLimit[iq],
+                                      self._model.upperPositionLimit[iq]], axis=1)
         self._h0 = self._length_jacobian(np.zeros(self.n_joints), jacobian=False)[0]
+        from pimbs_calibration.routing import check_both_ways  # needs a built model
+
+        check_both_ways(self)
 
     def __getstate__(self) -> dict:
         """Pickle support (e.g. for worker processes): the lock and the scratch data are
@@ -116,11 +122,15 @@ class ArmModel:
         return cls(load_robot(name_or_path))
 
     def _build_index(self) -> None:
-        """Precompute via points in their parent-joint frames and the segment -> muscle map."""
+        """Precompute via points in their parent-joint frames and the segment -> muscle map.
+
+        Internally every joint of the reduced model is a column (the driven joints and the
+        mimic joints following them); ``_S`` maps the columns back to driven joints.
+        """
         model = self._model
-        jids = [model.getJointId(j) for j in self.joints]
-        self._iq = np.array([model.joints[j].idx_q for j in jids])
+        jids = list(range(1, model.njoints))
         self._iv = np.array([model.joints[j].idx_v for j in jids])
+        self._S = self._S[[model.joints[j].idx_q for j in jids]]
         parents, points, owner = [], [], []
         for i, muscle in enumerate(self.robot.muscles):
             for via in muscle.path:
@@ -136,6 +146,8 @@ class ArmModel:
                                    dtype=np.float64)  # (V, N)
         outer = np.array([[a in model.supports[b] for b in jids] for a in jids])  # a <= b
         n = len(jids)
+        self._offset = self._offset[[model.joints[j].idx_q for j in jids]]
+        self._iq_cols = np.array([model.joints[j].idx_q for j in jids])
         self._pair_inner = np.where(outer, np.arange(n)[:, None], np.arange(n)[None, :])
         self._pair_outer = np.where(outer, np.arange(n)[None, :], np.arange(n)[:, None])
         owner = np.array(owner)
@@ -156,7 +168,7 @@ class ArmModel:
 
     def _q(self, theta: np.ndarray) -> np.ndarray:
         q = pin.neutral(self._model)
-        q[self._iq] = theta
+        q[self._iq_cols] = self._S @ theta + self._offset
         return q
 
     def _paths(self, theta: np.ndarray, jacobian: bool = True) -> _Paths:
@@ -165,7 +177,8 @@ class ArmModel:
         One pinocchio pass. A point p carried by revolute joint k moves with
         J_lin[:, k] + omega_k x p, where the WORLD-frame joint Jacobian's linear part is the
         velocity of the point at the origin. Jacobians are kept only for the endpoints of
-        segments that cross a joint (the others have constant length).
+        segments that cross a joint (the others have constant length). Their columns are the
+        reduced model's joints (``_S`` maps them to the driven joints).
         """
         model, data = self._model, self._data
         q = self._q(theta)
@@ -175,10 +188,7 @@ class ArmModel:
                 J = data.J[:, self._iv]
             else:
                 pin.forwardKinematics(model, data, q)
-            rot = np.array([data.oMi[j].rotation for j in self._joint_ids])[self._via_joint]
-            trans = np.array([data.oMi[j].translation for j in self._joint_ids])
-        trans = trans[self._via_joint]
-        p = np.einsum("vij,vj->vi", rot, self._via_local) + trans
+            p = self._world_points()
         d = p[self._seg_b] - p[self._seg_a]
         seg_len = np.sqrt(np.einsum("si,si->s", d, d))
         paths = _Paths(seg_len=seg_len, u=d / seg_len[:, None])
@@ -188,6 +198,32 @@ class ArmModel:
             paths.jp = (J[None, :3] + _cross(J[None, 3:], pe[:, :, None])) \
                 * self._via_moves[self._end_points][:, None, :]  # (E, 3, N)
         return paths
+
+    def _world_points(self) -> np.ndarray:
+        """(V, 3) via points in the world frame, from the kinematics in ``_data``."""
+        data = self._data
+        rot = np.array([data.oMi[j].rotation for j in self._joint_ids])[self._via_joint]
+        trans = np.array([data.oMi[j].translation for j in self._joint_ids])[self._via_joint]
+        return np.einsum("vij,vj->vi", rot, self._via_local) + trans
+
+    def via_points(self, theta) -> list[np.ndarray]:
+        """World positions (k_i, 3) of each muscle's via points at one pose (m)."""
+        theta = np.asarray(theta, dtype=np.float64)
+        with self._lock:
+            pin.forwardKinematics(self._model, self._data, self._q(theta))
+            p = self._world_points()
+        counts = [len(m.path) for m in self.robot.muscles]
+        return np.split(p, np.cumsum(counts)[:-1])
+
+    def link_frames(self, theta) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World (rotation (3, 3), position (3,)) of every link frame of the URDF at a pose."""
+        theta = np.asarray(theta, dtype=np.float64)
+        with self._lock:
+            pin.framesForwardKinematics(self._model, self._data, self._q(theta))
+            return {f.name: (np.array(self._data.oMf[k].rotation),
+                             np.array(self._data.oMf[k].translation))
+                    for k, f in enumerate(self._model.frames)
+                    if f.type == pin.FrameType.BODY}
 
     def _length_jacobian(self, theta: np.ndarray, jacobian: bool = True
                          ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -199,7 +235,7 @@ class ArmModel:
         """G (M, N): a crossing segment's length changes by u^T (J_b - J_a)."""
         u = paths.u[self._moving]
         dv = paths.jp[self._moving_b] - paths.jp[self._moving_a]
-        return self._moving_muscle @ np.einsum("si,sin->sn", u, dv)
+        return self._moving_muscle @ np.einsum("si,sin->sn", u, dv) @ self._S
 
     def _length_hessian(self, theta: np.ndarray, weight: np.ndarray,
                         paths: _Paths | None = None) -> np.ndarray:
@@ -221,6 +257,7 @@ class ArmModel:
         moves = self._via_moves[self._end_points]
         d2p = d2p * (moves[:, :, None] * moves[:, None, :])[:, None]
         H += np.einsum("s,si,sinm->nm", w, u, d2p[self._moving_b] - d2p[self._moving_a])
+        H = self._S.T @ H @ self._S  # q is linear in theta: no second-order term
         return 0.5 * (H + H.T)
 
     # ----------------------------------------------------------------- geometry and gravity
@@ -240,13 +277,13 @@ class ArmModel:
     def _gravity(self, theta: np.ndarray) -> np.ndarray:
         with self._lock:
             g = pin.computeGeneralizedGravity(self._model, self._data, self._q(theta))
-            return np.array(g)[self._iv]
+            return self._S.T @ np.array(g)[self._iv]
 
     def _gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
         with self._lock:
             dg = pin.computeGeneralizedGravityDerivatives(self._model, self._data,
                                                           self._q(theta))
-            return np.array(dg)[np.ix_(self._iv, self._iv)]
+            return self._S.T @ np.array(dg)[np.ix_(self._iv, self._iv)] @ self._S
 
     def potential_energy(self, theta) -> float:
         """Gravity potential energy (J) of a single pose; its gradient is ``gravity_torque``."""
@@ -268,42 +305,53 @@ class ArmModel:
         return self.h_geom(theta) - self.stretch(tension)
 
     # -------------------------------------------------------------------------- statics
-    def tension_distribution(self, theta, f_min, W=None) -> np.ndarray:
-        """Minimum-effort tensions holding ``theta``: min f^T W f s.t. -G^T f = g, f >= f_min.
+    def tension_distribution(self, theta, f_min, W=None, f_max=None) -> np.ndarray:
+        """Minimum-effort tensions holding ``theta``: min f^T W f s.t. -G^T f = g,
+        f_min <= f (<= f_max when given).
 
         Args:
             theta: (N,) or (B, N) pose(s).
             f_min: tension floor, scalar, (M,), or (B, M) for a batch (per-sample scalars:
                 pass ``f_min[:, None]``).
             W: (M, M) positive-definite weight, identity if None.
+            f_max: (M,) tension ceiling, or None for none.
         Returns:
             (M,) or (B, M) tensions in N.
         Raises:
-            InfeasiblePoseError: the muscles cannot hold the pose with f >= f_min.
+            InfeasiblePoseError: the muscles cannot hold the pose within the bounds.
         """
         theta = np.asarray(theta, dtype=np.float64)
         weight = np.eye(self.n_muscles) if W is None else np.asarray(W, dtype=np.float64)
+        ceiling = None if f_max is None else np.broadcast_to(
+            np.asarray(f_max, dtype=np.float64), (self.n_muscles,))
         if theta.ndim == 1:
             floor = np.broadcast_to(np.asarray(f_min, dtype=np.float64), (self.n_muscles,))
-            return self._qp(theta, floor, weight)
+            return self._qp(theta, floor, weight, ceiling)
         floor = np.broadcast_to(np.asarray(f_min, dtype=np.float64),
                                 (len(theta), self.n_muscles))
-        return np.stack([self._qp(t, fl, weight) for t, fl in zip(theta, floor, strict=True)])
+        return np.stack([self._qp(t, fl, weight, ceiling)
+                         for t, fl in zip(theta, floor, strict=True)])
 
-    def _qp(self, theta: np.ndarray, f_min: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    def _qp(self, theta: np.ndarray, f_min: np.ndarray, weight: np.ndarray,
+            f_max: np.ndarray | None = None) -> np.ndarray:
         G = self._length_jacobian(theta)[1]
         g = self._gravity(theta)
         # quadprog: min 1/2 x^T P x - a^T x  s.t.  C^T x >= b, the first meq rows as equalities.
-        C = np.hstack([-G, np.eye(self.n_muscles)])
-        b = np.concatenate([g, f_min])
+        eye = np.eye(self.n_muscles)
+        C = np.hstack([-G, eye] + ([] if f_max is None else [-eye]))
+        b = np.concatenate([g, f_min] + ([] if f_max is None else [-f_max]))
         try:
             f = quadprog.solve_qp(2.0 * weight, np.zeros(self.n_muscles), C, b,
                                   meq=self.n_joints)[0]
         except ValueError as exc:
+            bound = "" if f_max is None else f" <= {np.round(f_max, 1).tolist()} N"
+            pose = dict(zip(self.joints, np.round(theta, 4).tolist(), strict=True))
             raise InfeasiblePoseError(
-                f"{self.robot.name}: no tensions >= f_min hold theta={np.round(theta, 4)} "
-                f"({self.joints}) against gravity g={np.round(g, 4)} N*m ({exc}); the pose "
-                "is outside the muscles' reach, lower f_min or check the muscle geometry"
+                f"{self.robot.muscle_path}: no tensions >= {np.round(f_min, 1).tolist()} N"
+                f"{bound} hold {pose} "
+                f"against gravity {np.round(g, 3).tolist()} N*m ({exc}); the muscles cannot "
+                f"hold this pose. Run `pimbs robot {self.robot.muscle_path}` to see which "
+                "joint lacks a muscle pulling it one way, or narrow that joint's range"
             ) from exc
         return f
 

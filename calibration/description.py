@@ -1,19 +1,25 @@
 """Load and validate a robot description: a URDF (skeleton) plus a ``.muscles.yaml`` (muscles).
 
-The URDF carries what pinocchio needs (links, revolute joints, limits, masses, inertias); the
-muscle file carries what the URDF cannot say: which joints are actuated and in what column
-order, where each muscle's via points sit, its elastic element, its board and the board's
-sensor calibration. Every mistake is reported as a ``DescriptionError`` naming the file and the
-field, because a wrong description silently corrupts every recording made with it.
+The URDF carries what pinocchio needs (links, joints, limits, masses, inertias) and is used as
+shipped (``urdf_model``: meshes ignored, continuous and mimic joints understood, joints the
+muscles do not drive locked); the muscle file carries what the URDF cannot say: which joints
+are actuated and in what column order, where each muscle's via points sit, its elastic
+element, its board and the board's sensor calibration. Every mistake is reported as a
+``DescriptionError`` naming the file and the field, because a wrong description silently
+corrupts every recording made with it.
 
 Muscle file layout (values under ``defaults`` apply to every muscle that does not set them)::
 
     robot: two-link-4-muscle
-    urdf: two-link-4-muscle.urdf          # relative to this file
+    urdf: two-link-4-muscle.urdf          # relative to this file, or package://pkg/path
+    package_path: [../src]                # optional: where package:// looks (+ ROS_PACKAGE_PATH)
     joint_encoders: true
     joints:                               # actuated joints, in column order
       - {name: shoulder_pitch, range: [-0.5, 0.5]}
+    lock: {wrist_roll: 0.3}               # optional: value of a joint not driven (default 0)
     defaults: {K: 1000, f_max: 600, f_floor: 10, counts_per_m: ..., ...}
+                                          # optional protocol: pimbs-v1 (default),
+                                          # odrive-cansimple, or lab.profile.yaml
     muscles:
       - name: m0
         board_id: 1
@@ -26,12 +32,24 @@ from __future__ import annotations
 
 import importlib.resources
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
+
+from pimbs_calibration.urdf_model import (
+    ReducedModel,
+    UrdfError,
+    UrdfJoint,
+    parse_joints,
+    reduce,
+    refuse_xacro,
+    resolve_package_url,
+    ros_package_path,
+)
 
 MUSCLE_SUFFIX = ".muscles.yaml"
 _BUILTIN = ("two-link-4-muscle", "left-arm-5dof")
@@ -92,6 +110,9 @@ class MuscleSpec:
     counts_per_m: float  # motor encoder counts per metre of wire
     loadcell_n_per_count: float
     loadcell_offset_counts: float
+    # board protocol: None = PIMBS v1; a shipped profile name (odrive-cansimple) or the
+    # absolute path of a lab's ``*.profile.yaml`` (a .dbc + mapping; see pimbs_hw)
+    protocol: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,6 +126,8 @@ class RobotDescription(_ArrayFieldsEq):
     joint_range: np.ndarray  # (N, 2) sampling range, inside the URDF limits
     joint_encoders: bool
     muscles: tuple[MuscleSpec, ...]
+    locked: tuple[tuple[str, float], ...] = ()  # joints not driven, and the value they hold
+    followers: tuple[tuple[str, str, float, float], ...] = ()  # mimic, leader, multiplier, c
 
 
 def builtin_robots() -> list[str]:
@@ -112,11 +135,14 @@ def builtin_robots() -> list[str]:
     return list(_BUILTIN)
 
 
-def load_robot(name_or_path: str | Path) -> RobotDescription:
+def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
+               ) -> RobotDescription:
     """Load a built-in robot by name, or a description from a path to its ``.muscles.yaml``.
 
     Built-ins are read through ``importlib.resources`` so an installed (non-editable) package
-    finds them. Raises ``DescriptionError`` for any broken or unknown description.
+    finds them. ``package_path``: directories searched first for a ``urdf: package://...``
+    (then the muscle file's ``package_path``, then ``ROS_PACKAGE_PATH``). Raises
+    ``DescriptionError`` for any broken or unknown description.
     """
     text = str(name_or_path)
     if text in _BUILTIN and not Path(text).exists():
@@ -130,10 +156,10 @@ def load_robot(name_or_path: str | Path) -> RobotDescription:
             path, "robot", "no such built-in robot or muscle file",
             f"Use one of {', '.join(_BUILTIN)} or a path to a *{MUSCLE_SUFFIX} file",
         )
-    return _load_file(path)
+    return _load_file(path, package_path)
 
 
-def _load_file(path: Path) -> RobotDescription:
+def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescription:
     try:
         raw = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
@@ -143,15 +169,41 @@ def _load_file(path: Path) -> RobotDescription:
         raise DescriptionError(path, "<file>", "top level is not a mapping",
                                "Write robot, urdf, joints, joint_encoders and muscles keys")
     name = _require(raw, "robot", str, path, "robot")
-    urdf_path = path.parent / _require(raw, "urdf", str, path, "urdf")
-    urdf = _read_urdf(urdf_path, path)
-    joints, joint_range = _parse_joints(raw, urdf, path)
+    urdf_path = _urdf_path(raw, path, package_path)
+    text, urdf_joints = _read_urdf(urdf_path, path)
+    joints, joint_range = _parse_joints(raw, urdf_joints, path)
+    lock = _parse_lock(raw, urdf_joints, joints, path)
+    reduced = _reduce(text, joints, lock, urdf_path, path)
     encoders = _require(raw, "joint_encoders", bool, path, "joint_encoders")
-    muscles = _parse_muscles(raw, urdf, joints, path)
+    muscles = _parse_muscles(raw, reduced.model, joints, path)
     return RobotDescription(
         name=name, urdf_path=urdf_path.resolve(), muscle_path=path.resolve(), joints=joints,
         joint_range=joint_range, joint_encoders=encoders, muscles=muscles,
+        locked=tuple(reduced.locked.items()),
+        followers=tuple((k, *v) for k, v in reduced.followers.items()),
     )
+
+
+def reduced_model(robot: RobotDescription) -> ReducedModel:
+    """The pinocchio model of a loaded description (driven joints only, see ``urdf_model``)."""
+    return reduce(robot.urdf_path.read_text(), robot.joints, dict(robot.locked))
+
+
+def _urdf_path(raw: dict, path: Path, package_path: Sequence[Path]) -> Path:
+    """``urdf``: relative to the muscle file, absolute, or ``package://pkg/file``."""
+    url = _require(raw, "urdf", str, path, "urdf")
+    if url.startswith("file://"):
+        url = url.removeprefix("file://")
+    if not url.startswith("package://"):
+        return path.parent / url
+    extra = raw.get("package_path", [])
+    if isinstance(extra, str):
+        extra = [extra]
+    if not isinstance(extra, list) or not all(isinstance(p, str) for p in extra):
+        raise DescriptionError(path, "package_path", f"expected a list of directories, got "
+                               f"{extra!r}", "Write 'package_path: [dir, ...]'")
+    search = [*package_path, *(path.parent / p for p in extra), *ros_package_path()]
+    return resolve_package_url(url, search, path)  # UrdfError names the file and the fix
 
 
 def _require(raw: dict, key: str, kind: type | tuple[type, ...], path: Path, field: str) -> Any:
@@ -167,23 +219,68 @@ def _require(raw: dict, key: str, kind: type | tuple[type, ...], path: Path, fie
     return value
 
 
-def _read_urdf(urdf_path: Path, path: Path):
-    """Build the pinocchio model; the URDF is where limits and links are checked against."""
-    import pinocchio as pin  # lazy: only needed once a description is actually loaded
-
+def _read_urdf(urdf_path: Path, path: Path) -> tuple[str, dict[str, UrdfJoint]]:
+    """The URDF text and its joints; a xacro file is refused with how to expand it."""
     if not urdf_path.is_file():
         raise DescriptionError(path, "urdf", f"URDF file {urdf_path} not found",
                                "Give the URDF path relative to the muscle file")
     try:
-        return pin.buildModelFromUrdf(str(urdf_path))
+        text = urdf_path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DescriptionError(path, "urdf", f"cannot read URDF {urdf_path} ({exc})",
+                               "Give the path of a readable URDF text file") from exc
+    try:
+        refuse_xacro(urdf_path, text)
+        return text, parse_joints(urdf_path, text)
+    except UrdfError as exc:
+        raise DescriptionError(path, "urdf", str(exc), "Fix the 'urdf' entry") from exc
+
+
+def _reduce(text: str, joints: tuple[str, ...], lock: dict[str, float], urdf_path: Path,
+            path: Path) -> ReducedModel:
+    try:
+        return reduce(text, joints, lock)
+    except UrdfError as exc:
+        raise DescriptionError(path, "urdf", str(exc), "Fix the URDF") from exc
     except Exception as exc:  # pinocchio raises plain RuntimeError/ValueError on parse errors
         raise DescriptionError(path, "urdf", f"cannot parse URDF {urdf_path} ({exc})",
                                "Fix the URDF so pinocchio can load it") from exc
 
 
-def _parse_joints(raw: dict, model, path: Path) -> tuple[tuple[str, ...], np.ndarray]:
+def _parse_lock(raw: dict, urdf: dict[str, UrdfJoint], joints: tuple[str, ...], path: Path
+                ) -> dict[str, float]:
+    """``lock: {joint: value}``: where a joint the muscles do not drive is held."""
+    lock = raw.get("lock", {}) or {}
+    if not isinstance(lock, dict):
+        raise DescriptionError(path, "lock", f"expected a mapping, got {lock!r}",
+                               "Write 'lock: {joint_name: angle_in_rad}'")
+    for name, value in lock.items():
+        field = f"lock.{name}"
+        if name not in urdf or not urdf[name].movable:
+            movable = [j.name for j in urdf.values() if j.movable]
+            raise DescriptionError(path, field, f"'{name}' is not a movable joint of the URDF "
+                                   f"(movable: {movable})", "Use a joint name from the URDF")
+        if name in joints:
+            raise DescriptionError(path, field, f"'{name}' is driven by the muscles (listed "
+                                   "under joints)", "Remove it from 'lock' or from 'joints'")
+        if urdf[name].mimic is not None:
+            raise DescriptionError(path, field, f"'{name}' is a mimic joint of "
+                                   f"'{urdf[name].mimic[0]}'", "Lock its leader instead")
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value):
+            raise DescriptionError(path, field, f"expected a finite number, got {value!r}",
+                                   "Give the angle in rad (or position in m)")
+        lo, hi = urdf[name].lower, urdf[name].upper
+        if not lo <= value <= hi:
+            raise DescriptionError(path, field, f"{value} is outside the URDF limits "
+                                   f"[{lo:g}, {hi:g}]", "Lock it inside its limits")
+    return {k: float(v) for k, v in lock.items()}
+
+
+def _parse_joints(raw: dict, urdf: dict[str, UrdfJoint], path: Path
+                  ) -> tuple[tuple[str, ...], np.ndarray]:
     entries = _require(raw, "joints", list, path, "joints")
-    movable = [n for n in list(model.names)[1:]]
+    movable = [j.name for j in urdf.values() if j.movable]
     names: list[str] = []
     ranges = []
     for i, entry in enumerate(entries):
@@ -199,23 +296,25 @@ def _parse_joints(raw: dict, model, path: Path) -> tuple[tuple[str, ...], np.nda
         if name in names:
             raise DescriptionError(path, f"{field}.name", f"joint '{name}' listed twice",
                                    "List each actuated joint once")
-        jid = model.getJointId(name)
-        if model.joints[jid].nq != 1 or model.joints[jid].nv != 1:
-            raise DescriptionError(path, f"{field}.name", f"joint '{name}' is not revolute",
-                                   "Only revolute joints are supported")
+        joint = urdf[name]
+        if joint.type not in ("revolute", "continuous"):
+            raise DescriptionError(path, f"{field}.name", f"joint '{name}' is {joint.type}",
+                                   "Muscles can drive revolute and continuous joints only")
+        if joint.mimic is not None:
+            raise DescriptionError(path, f"{field}.name", f"joint '{name}' is a mimic joint "
+                                   f"of '{joint.mimic[0]}' and follows it",
+                                   f"List its leader '{joint.mimic[0]}' instead")
         rng = _vector(entry.get("range"), 2, path, f"{field}.range")
-        q = model.joints[jid].idx_q
-        lo, hi = model.lowerPositionLimit[q], model.upperPositionLimit[q]
+        lo, hi = joint.lower, joint.upper
         if not rng[0] < rng[1] or rng[0] < lo or rng[1] > hi:
             raise DescriptionError(path, f"{field}.range", f"{list(rng)} is not an increasing "
                                    f"range inside the URDF limits [{lo:g}, {hi:g}]",
                                    "Narrow the sampling range or widen the URDF limit")
         names.append(name)
         ranges.append(rng)
-    missing = sorted(set(movable) - set(names))
-    if missing:
-        raise DescriptionError(path, "joints", f"URDF joints {missing} are not listed",
-                               "List every movable URDF joint (or make it fixed in the URDF)")
+    if not names:
+        raise DescriptionError(path, "joints", "no joints listed",
+                               "List the joints the muscles drive")
     return tuple(names), np.array(ranges, dtype=np.float64).reshape(len(names), 2)
 
 
@@ -274,7 +373,18 @@ def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Pat
                                f"[0, f_max={values['f_max']})", "Lower f_floor or raise f_max")
     via = _parse_path(_require(entry, "path", list, path, f"{field}.path"), model, joints,
                       path, f"{field}.path")
-    return MuscleSpec(name=name, board_id=board_id, path=via, **values)
+    protocol = entry.get("protocol")
+    if protocol is not None:
+        if not isinstance(protocol, str) or not protocol:
+            raise DescriptionError(path, f"{field}.protocol", f"{protocol!r} is not a profile",
+                                   "Write pimbs-v1, odrive-cansimple or a path to a "
+                                   "*.profile.yaml")
+        if protocol.endswith(".yaml"):
+            protocol = str((path.parent / protocol).resolve())
+            if not Path(protocol).is_file():
+                raise DescriptionError(path, f"{field}.protocol", f"no file {protocol}",
+                                       "Give the profile's path relative to this file")
+    return MuscleSpec(name=name, board_id=board_id, path=via, protocol=protocol, **values)
 
 
 def _parse_path(entries: list, model, joints: tuple[str, ...], path: Path, field: str

@@ -1,6 +1,8 @@
 """The paper's simulated body-schema data set, and "real" data with a concealed effect.
 
-Per sample (Sec. III-A of the paper): θ uniform in the joint range; gravity torque and
+Per sample (Sec. III-A of the paper): θ uniform in the joint range (the seeded sequence of
+:mod:`pimbs_calibration.poses`, shared with ``collect``: a pose the muscles cannot hold within
+f_max is replaced by a feasible draw); gravity torque and
 geometric lengths from the model; tensions from the QP ``min fᵀf s.t. −Gᵀf = τ, f ≥ f_min``
 with ``f_min = 0`` (AL-Map) or uniform in [10, 300] N per muscle (ATL-Map); lengths with the
 elastic stretch ``f = exp(KΔn) − 1``.
@@ -21,11 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel, sample_poses
+from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
 from pimbs_calibration.effects import Effect, World
+from pimbs_calibration.poses import ATL_F_MIN, hold_ceiling, plan_poses
 from pimbs_calibration.recording import make_meta
 
-ATL_F_MIN = (10.0, 300.0)  # N, the paper's range for the ATL-Map
+__all__ = ["ATL_F_MIN", "simulate", "SensorNoise", "ThermalModel", "approach_direction"]
 START = np.datetime64("2026-01-01T09:00:00", "us")  # fixed, so files of one seed are equal
 
 
@@ -76,14 +79,13 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
     """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
-    pose_rng = np.random.default_rng([seed, 0])
-    fmin_rng = np.random.default_rng([seed, 1])
     noise_rng = np.random.default_rng([seed, 2])
     world = World(arm, tuple(effects))
     sigma = SensorNoise().scaled(noise)
     thermal = ThermalModel()
 
-    theta_cmd = sample_poses(arm.joint_range, n_samples, pose_rng)
+    plan = plan_poses(arm, n_samples, seed, map_kind)
+    theta_cmd = plan.poses
     n, m = arm.n_joints, arm.n_muscles
     out = {k: np.zeros((n_samples, w)) for k, w in
            (("theta", n), ("tension", m), ("length", m), ("temperature", m),
@@ -92,9 +94,9 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
     prev_length = np.zeros(m)  # the arm starts at the home pose, unloaded
     temp = np.full(m, thermal.ambient)
     for i in range(n_samples):
-        f_min = (np.zeros(m) if map_kind == "al" else fmin_rng.uniform(*ATL_F_MIN, m))
+        f_min = plan.drawn_floors[i]
         theta_true = world.true_pose(theta_cmd[i])
-        tension = world.arm.tension_distribution(theta_true, f_min)
+        tension = _hold(world.arm, theta_true, f_min)
         length = world.arm.length(theta_true, tension)
         approach[i] = approach_direction(prev_length, length)
         prev_length = length
@@ -118,5 +120,15 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
                      seed=seed, map=map_kind, generator="pimbs simulate",
                      f_min=[0.0, 0.0] if map_kind == "al" else list(ATL_F_MIN),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
-                     noise=noise, theta_source="simulation")
+                     noise=noise, theta_source="simulation",
+                     replaced_poses=list(plan.replaced))
     return data, meta
+
+
+def _hold(arm: ArmModel, theta: np.ndarray, f_min: np.ndarray) -> np.ndarray:
+    """The planned tensions (within the plan's ceiling); a concealed effect may make the true
+    arm need more, which it then really pulls, as a real arm would."""
+    try:
+        return arm.tension_distribution(theta, f_min, f_max=hold_ceiling(arm))
+    except InfeasiblePoseError:
+        return arm.tension_distribution(theta, f_min)

@@ -50,8 +50,9 @@ def _stop_on_signals() -> Iterator[None]:
 
 @click.command("collect")
 @click.option("--port", required=True,
-              help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, /dev/ttyUSB0 "
-                   "(serial), or virtual for the simulated arm")
+              help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, "
+                   "slcan:/dev/ttyACM0, /dev/ttyUSB0 (serial), or virtual (slcan-pty: through "
+                   "an emulated SLCAN adapter) for the simulated arm")
 @click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True)
 @robot_option()
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
@@ -80,17 +81,22 @@ def _stop_on_signals() -> Iterator[None]:
               help="s: wait this long before each reading instead of detecting settling")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
+@click.option("--calibration", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="encoder zeros from `pimbs zero` [default: ROBOT.calibration.yaml beside "
+                   "the robot file (here for a built-in robot) when it exists]")
 @user_errors
 def command(port: str, samples: int, robot: str, out: Path | None, seed: int, map_kind: str,
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
-            settle_timeout: float, fixed_wait: float | None, mock_speed: float) -> None:
+            settle_timeout: float, fixed_wait: float | None, mock_speed: float,
+            calibration: Path | None) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
     from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.plan import CollectionPlan
@@ -114,15 +120,32 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
     meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
                            settle=settle.meta(), move=moves.meta())
+    if plan.replaced:
+        click.echo(replaced_note(plan.replaced, samples, seed), err=True)
+    zero_m, note = _zeros(model.robot, calibration, simulated)
     writer, start = open_recording(out, meta, resume)
     if start >= samples:
         click.echo(f"{out} already holds all {samples} samples; nothing to do")
         return
     with _stop_on_signals():
-        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
+        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed, zero_m,
+             note)
 
 
-def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed) -> None:
+def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, str | None]:
+    """Encoder zeros to apply (the named file, else the robot's default one if present),
+    and the line to show once the arm is connected."""
+    from pimbs_hw.zeroing import default_path, load
+
+    path = calibration or default_path(robot)
+    if calibration is None and (simulated or not path.exists()):
+        return None, (None if simulated else f"note: no {path}; encoders are used as they "
+                      "read (run `pimbs zero` on a real arm first)")
+    return load(path, robot), f"encoder zeros from {path}"
+
+
+def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
+         zero_m=None, note=None) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -138,7 +161,9 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
     reason: str | None = None  # what happened, for the summary
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
-                       speed=moves.speed) as link:
+                       speed=moves.speed, zero_m=zero_m) as link:
+            if note:
+                console.print(note)
             collector = Collector(link, model, plan, writer, start, settle, move=moves)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
@@ -151,7 +176,8 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed)
         if collector is not None:
             collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
     except SafetyStop as stop:
-        reason, error = str(stop), stop_advice(stop)
+        sample = collector.summary.next_sample if collector is not None else None
+        reason, error = str(stop), stop_advice(stop, plan, sample)
     except RecordingWriteError as exc:
         reason = str(exc)
         error = (f"{exc}. The arm was relaxed; samples written so far are safe. "

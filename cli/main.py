@@ -19,6 +19,10 @@ COMMANDS: dict[str, str] = {
     "train": "pimbs_cli.train",
     "experiment": "pimbs_cli.experiment",
     "diagnose": "pimbs_cli.diagnose",
+    "scan": "pimbs_cli.scan",
+    "zero": "pimbs_cli.zero",
+    "robot": "pimbs_cli.robot",
+    "import": "pimbs_cli.import_log",
 }
 
 

@@ -1,10 +1,16 @@
 """`pimbs mockbus`: the simulated arm as a standalone process, for trying tools by hand.
 
 `pimbs collect --port virtual` starts its own in-process simulated arm; this command is for
-talking to one from another process: over a pty (`--serial`, the driver opens the printed
-path) or over a CAN port both processes can reach (`udp_multicast:GROUP` needs the optional
-`msgpack` package; `vcan0` needs `sudo ip link add vcan0 type vcan && sudo ip link set vcan0 up`).
-The python-can `virtual` bus lives inside one process, so it is useless here.
+talking to one from another process on the same computer. Simulated boards are for one
+host, so every place they can sit stays on it:
+
+- `pty` (default): a pseudo-terminal speaking the USB-serial board framing; the driver
+  opens the printed `/dev/pts/N` path.
+- `slcan`: a pty behind an emulated SLCAN USB-CAN adapter; the driver opens the printed
+  `slcan:/dev/pts/N` through python-can's real `slcan` interface.
+- a SocketCAN virtual channel such as `vcan0` (`sudo ip link add vcan0 type vcan &&
+  sudo ip link set vcan0 up`): in the kernel, never on a wire.
+UDP multicast is refused: its datagrams leave the machine.
 """
 
 from __future__ import annotations
@@ -16,14 +22,42 @@ import click
 
 from pimbs_cli.common import robot_option, user_errors
 
-DEFAULT_CHANNEL = "udp_multicast:239.74.163.2"
+DEFAULT_PORT = "pty"
+_FORMS = "pty, slcan, or a SocketCAN virtual channel such as vcan0"
+
+
+def check_port(port: str) -> str:
+    """The link the simulated boards may sit on, or one line saying why not and what to use."""
+    from pimbs_hw.transport import is_serial_port
+
+    if port in ("pty", "slcan"):
+        return port
+    if is_serial_port(port):
+        raise click.ClickException(
+            f"--port {port}: that is a serial device; the simulated boards make their own "
+            f"pseudo-terminal: use --port pty (or slcan) and pass the printed path to "
+            f"`pimbs collect --port`")
+    iface, sep, _ = port.partition(":")
+    if port in ("virtual", "") or iface == "virtual":
+        raise click.ClickException(
+            f"--port {port}: python-can's virtual bus lives inside one process; for a "
+            f"simulated arm in the collecting process use `pimbs collect --port virtual`, "
+            f"here use {_FORMS}")
+    if not sep and port.startswith("vcan"):
+        return port
+    why = ("udp_multicast datagrams leave the machine" if iface == "udp_multicast"
+           else "a real CAN interface would put simulated boards on a real bus")
+    raise click.ClickException(
+        f"--port {port}: the simulated boards stay on this computer ({why}); use {_FORMS}")
 
 
 @click.command("mockbus")
 @robot_option()
-@click.option("--channel", default=DEFAULT_CHANNEL, show_default=True,
-              help="CAN port the simulated boards sit on (udp_multicast:GROUP, vcan0, ...)")
-@click.option("--serial", is_flag=True, help="boards behind a pty instead (prints its path)")
+@click.option("--port", "link", default=DEFAULT_PORT, show_default=True,
+              metavar="pty|slcan|vcanN",
+              help="where the simulated boards sit: a pty (serial framing), a pty behind an "
+                   "emulated SLCAN adapter, or a SocketCAN virtual channel")
+@click.option("--serial", is_flag=True, hidden=True, help="same as --port pty (older spelling)")
 @click.option("--fault", "faults", multiple=True, metavar="KIND:MUSCLE@TRIGGER",
               help="inject a fault: @2.5s (seconds) or @300c (board cycles); @SAMPLE "
                    "triggers need an in-process collection, here only @0 fires")
@@ -35,13 +69,15 @@ DEFAULT_CHANNEL = "udp_multicast:239.74.163.2"
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
               help="s to run [default: until Ctrl-C]")
 @user_errors
-def command(robot: str, channel: str, serial: bool, faults: tuple[str, ...],
+def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             conceal: tuple[str, ...], seed: int, speed: float, duration: float | None) -> None:
-    """Run simulated muscle boards of ROBOT on a CAN port or a pty until Ctrl-C."""
+    """Run simulated muscle boards of ROBOT on a pty or a local CAN channel until Ctrl-C."""
     from pimbs_calibration.description import load_robot
     from pimbs_calibration.effects import parse_effect
+    from pimbs_hw.errors import PortError
     from pimbs_hw.mock import MockArm, parse_faults
 
+    link = check_port("pty" if serial else link)
     logging.basicConfig(level=logging.INFO, format="mockbus: %(message)s")
     description = load_robot(robot)
     muscles = tuple(m.name for m in description.muscles)
@@ -50,11 +86,16 @@ def command(robot: str, channel: str, serial: bool, faults: tuple[str, ...],
         click.echo("warning: @SAMPLE triggers other than @0 never fire in a standalone mock; "
                    "use @SECONDSs or @CYCLESc", err=True)
     effects = [parse_effect(c, seed=seed) for c in conceal] or None
-    mock = MockArm(description, "pty" if serial else channel, effect=effects, faults=specs,
-                   seed=seed, speed=speed)
+    try:
+        mock = MockArm(description, link, effect=effects, faults=specs, seed=seed, speed=speed)
+    except PortError as exc:
+        raise click.ClickException(
+            f"--port {link}: cannot open it ({exc.problem}); create it first "
+            f"(`sudo ip link add {link} type vcan && sudo ip link set {link} up`) or use "
+            f"--port pty") from exc
     boards = ", ".join(f"{m.name}=board {m.board_id}" for m in description.muscles)
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
-    click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}")
+    click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:
             threading.Event().wait(duration)

@@ -32,6 +32,7 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_calibration.effects import parse_effect
+    from pimbs_calibration.poses import replaced_note
     from pimbs_calibration.recording import RecordingWriteError, write_recording
     from pimbs_calibration.simulate import simulate
 
@@ -46,6 +47,8 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     except RecordingWriteError as exc:  # the message names the file; simulate has no resume
         raise click.ClickException(f"{exc}; free disk space and run the same command "
                                    "again") from exc
+    if meta["replaced_poses"]:
+        click.echo(replaced_note(meta["replaced_poses"], samples, seed), err=True)
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")

@@ -13,7 +13,9 @@
 
 Ports: ``virtual`` (in-process simulated arm on a fresh python-can virtual channel),
 ``virtual:NAME`` (same, on channel NAME), ``pty`` (simulated arm behind a pty, driven through
-the serial transport); anything else is real hardware or an external ``pimbs mockbus``
+the serial transport), ``slcan-pty`` (simulated arm behind an emulated SLCAN adapter on a
+pty, opened through python-can's real ``slcan`` interface); anything else is real hardware
+or an external ``pimbs mockbus``
 (``can0``, ``pcan:PCAN_USBBUS1``, ``udp_multicast``, ``/dev/ttyACM0``...; see
 ``pimbs_hw.transport``). ``mock`` is the ``MockArm`` (true state via ``mock.snapshot()``) or
 None on hardware. Faults and effects exist only on the simulated arm.
@@ -31,37 +33,55 @@ from pimbs_hw.mock import MockArm
 from pimbs_hw.safety import SafetyLimits
 from pimbs_hw.transport import open_transport
 
+SIMULATED_PORTS = ("virtual", "pty", "slcan-pty")
+
 
 def is_simulated(port: str) -> bool:
-    return port in ("virtual", "pty") or port.startswith("virtual:")
+    return port in SIMULATED_PORTS or port.startswith("virtual:")
+
+
+def mock_link(port: str) -> str:
+    """The link a ``MockArm`` sits on for a simulated ``--port`` (a fresh virtual channel)."""
+    if port == "virtual":
+        return f"virtual:pimbs-{uuid.uuid4().hex[:12]}"
+    return "slcan" if port == "slcan-pty" else port
 
 
 @contextmanager
 def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
              faults: Sequence[str] | str | None = None, effect=None, seed: int = 0,
              speed: float = 1.0, limits: SafetyLimits | None = None,
-             connect_timeout_s: float = 1.0) -> Iterator[tuple[ArmDriver, MockArm | None]]:
-    """Driver for the arm on ``port``; starts the simulated arm for simulated ports."""
+             connect_timeout_s: float = 1.0, zero_m=None, mock_options: dict | None = None
+             ) -> Iterator[tuple[ArmDriver, MockArm | None]]:
+    """Driver for the arm on ``port``; starts the simulated arm for simulated ports.
+
+    ``zero_m``: encoder readings at the zero pose (from ``pimbs zero``'s calibration file).
+    ``mock_options``: extra ``MockArm`` arguments (e.g. ``encoder_offset_m``).
+    """
     if isinstance(robot, str | Path):
         from pimbs_calibration.description import load_robot
 
         robot = load_robot(robot)
     mock = None
+    transport_kwargs = {}
     if is_simulated(port):
-        link = f"virtual:pimbs-{uuid.uuid4().hex[:12]}" if port == "virtual" else port
-        mock = MockArm(robot, link, effect=effect, faults=faults or (), seed=seed,
-                       speed=speed).start()
+        if port == "slcan-pty":
+            transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait
+        mock = MockArm(robot, mock_link(port), effect=effect, faults=faults or (), seed=seed,
+                       speed=speed, **(mock_options or {})).start()
         port = mock.port
     elif faults or effect is not None:
         raise ValueError(f"faults and effects exist only on the simulated arm, not on port "
                          f"{port!r}; use --port virtual")
     try:
-        transport = open_transport(port)
+        transport = open_transport(port, **transport_kwargs)
         try:
             driver = ArmDriver(transport, robot, limits, connect_timeout_s=connect_timeout_s)
         except BaseException:
             transport.close()
             raise
+        if zero_m is not None:
+            driver.set_zero(zero_m)
         with driver:
             yield driver, mock
     finally:

@@ -11,39 +11,34 @@ The boards' watchdogs are fed only by ``command``, ``hold``, ``relax`` and ``dwe
 that hangs stops feeding them and the arm relaxes within ``limits.watchdog_s``. Any limit
 violation raises a ``SafetyStop`` naming the muscle and board, after the driver has relaxed
 every board it can reach; later commands raise the same stop again.
+
+The driver speaks to the boards only through the ``BoardProtocol`` seam
+(``pimbs_hw.protocol.board``): per muscle, the protocol its description names (PIMBS v1 by
+default, or a CAN profile from a ``.dbc`` and a mapping). Safety lives here, above the seam,
+the same for every protocol.
 """
 
 from __future__ import annotations
 
 import collections
-import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_hw.protocol.codec import (
-    CodecError,
-    Fault,
-    JointStatus,
-    Message,
-    PositionCommand,
-    Relax,
-    SetLimits,
-    Status,
-    Stop,
-    TensionCommand,
-    board_of,
-    decode,
-    encode,
-    frame_id,
-    signal_range,
+from pimbs_hw.protocol.board import (
+    BoardLimits,
+    BoardProtocol,
+    CorruptFrame,
+    Update,
 )
+from pimbs_hw.protocol.codec import Fault
 from pimbs_hw.safety import (
     BoardSilent,
     CorruptFrames,
     FramesDropped,
+    LoadcellSaturated,
     Overheat,
     SafetyLimits,
     SafetyStop,
@@ -52,10 +47,8 @@ from pimbs_hw.safety import (
 )
 from pimbs_hw.transport.base import Frame, Transport
 
-POSITION_RANGE = signal_range(PositionCommand, "position_counts")
-RAW_RANGE = signal_range(TensionCommand, "loadcell_raw")
-_MODES = {"length": PositionCommand, "position": PositionCommand, "tension": TensionCommand,
-          "relax": Relax}
+_MODES = {"length": "length", "position": "length", "tension": "tension", "relax": "relax"}
+_NEEDED = ("position_m", "tension_n")  # a muscle's reading is fresh when both are new
 
 
 @dataclass(frozen=True)
@@ -66,11 +59,11 @@ class ArmState:
     muscles: tuple[str, ...]
     length: np.ndarray  # m, relative to the zero pose
     tension: np.ndarray  # N
-    temperature: np.ndarray  # °C
+    temperature: np.ndarray  # °C (NaN where the protocol reports none)
     faults: tuple[Fault, ...]
-    seq: np.ndarray  # the status frame's 4-bit counter
-    age: np.ndarray  # s since that status frame arrived
-    fresh: np.ndarray  # bool: a new status frame arrived since the previous read_state
+    seq: np.ndarray  # the status frame's 4-bit counter (-1 where the protocol has none)
+    age: np.ndarray  # s since the older of the position and tension readings arrived
+    fresh: np.ndarray  # bool: new position and tension since the previous read_state
     theta: np.ndarray | None = None  # rad, joint encoders (robots with joint_encoders)
 
     def muscle(self, name: str) -> dict[str, object]:
@@ -81,31 +74,85 @@ class ArmState:
 
 
 class _Rx:
-    """Receive bookkeeping of one board: latest frame, freshness, loss and CRC failures."""
+    """Receive bookkeeping of one board (or joint encoder): latest values, freshness, loss."""
 
-    def __init__(self) -> None:
-        self.msg: Status | JointStatus | None = None
-        self.time = -np.inf
-        self.fresh = False
+    def __init__(self, period_s: float, counted: bool) -> None:
+        self.values = {"position_m": np.nan, "tension_n": np.nan, "temperature_c": np.nan,
+                       "angle_rad": np.nan}
+        self.times = {name: -np.inf for name in self.values}
+        self.news: set[str] = set()
+        self.faults = Fault(0)
+        self.saturated = False
+        self.counter: int | None = None
+        self.version: str | None = None
+        self.period_s, self.counted = period_s, counted
         self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
         self.lost = 0  # sum of the gaps in ``gaps``
+        self.arrivals: collections.deque[float] = collections.deque()  # uncounted protocols
+        self.first = np.inf
         self.corrupt: collections.deque[float] = collections.deque()
 
-    def update(self, msg: Status | JointStatus, now: float) -> None:
-        if self.msg is not None:
-            gap = (msg.counter - self.msg.counter - 1) & 0xF
-            if gap == 15:  # same counter again: a repeated frame, not news
-                return
-            self.gaps.append((now, gap))
-            self.lost += gap
-        self.msg, self.time, self.fresh = msg, now, True
+    def update(self, u: Update, now: float) -> None:
+        if u.counter is not None:
+            if self.counter is not None:
+                gap = (u.counter - self.counter - 1) & 0xF
+                if gap == 15:  # same counter again: a repeated frame, not news
+                    return
+                self.gaps.append((now, gap))
+                self.lost += gap
+            self.counter = u.counter
+        elif not self.counted and u.position_m is not None:
+            self.arrivals.append(now)
+            self.first = min(self.first, now)
+        for name in self.values:
+            value = getattr(u, name)
+            if value is not None:
+                self.values[name], self.times[name] = value, now
+                self.news.add(name)
+        if u.tension_n is not None:
+            self.saturated = u.saturated
+        if u.faults is not None:
+            self.faults = u.faults
+        if u.version is not None:
+            self.version = u.version
+
+    def seen(self, fields: Sequence[str] = _NEEDED) -> bool:
+        return all(np.isfinite(self.times[f]) for f in fields)
+
+    def fresh(self, fields: Sequence[str] = _NEEDED) -> bool:
+        return all(f in self.news for f in fields)
+
+    def age(self, now: float, fields: Sequence[str] = _NEEDED) -> tuple[float, str]:
+        """Age of the oldest of ``fields`` and its name."""
+        name = min(fields, key=lambda f: self.times[f])
+        return now - self.times[name], name
 
     def loss(self, now: float, window_s: float) -> tuple[float, int]:
-        """(fraction of frames lost, frames received) over the last ``window_s``."""
-        while self.gaps and now - self.gaps[0][0] > window_s:
-            self.lost -= self.gaps.popleft()[1]
-        n = len(self.gaps)
-        return (self.lost / (self.lost + n) if n else 0.0), n
+        """(fraction of frames lost, frames received) over the last ``window_s``.
+
+        By counter gaps where the protocol counts its frames, else by the arrival rate
+        against the status period over ``rate_window`` (judged only once a whole window has
+        been watched, and not during a silence, which is ``BoardSilent``'s to call).
+        """
+        if self.counted:
+            while self.gaps and now - self.gaps[0][0] > window_s:
+                self.lost -= self.gaps.popleft()[1]
+            n = len(self.gaps)
+            return (self.lost / (self.lost + n) if n else 0.0), n
+        window_s = self.rate_window(window_s)
+        while self.arrivals and now - self.arrivals[0] > window_s:
+            self.arrivals.popleft()
+        if now - self.first < window_s or not self.arrivals or (
+                now - self.arrivals[-1] > 10 * self.period_s):
+            return 0.0, len(self.arrivals)  # too early to judge, or silence: not loss
+        expected = window_s / self.period_s
+        return max(0.0, 1.0 - len(self.arrivals) / expected), int(expected)
+
+    def rate_window(self, window_s: float) -> float:
+        """Window for a rate judgement: long enough that a host which reads late (frames
+        queued, then read in a burst) is not mistaken for a lossy bus; a 75 % loss is
+        still seen within it."""
+        return window_s if self.counted else max(window_s, 2.0, 100 * self.period_s)
 
     def corrupt_in_last_second(self, now: float) -> int:
         while self.corrupt and now - self.corrupt[0] > 1.0:
@@ -114,10 +161,17 @@ class _Rx:
 
 
 class ArmDriver:
-    """See the module docstring. ``robot``: a ``pimbs_calibration.description.RobotDescription``."""
+    """See the module docstring. ``robot``: a ``pimbs_calibration.description.RobotDescription``.
+
+    ``protocols``: the ``BoardProtocol``s that together cover every muscle; by default
+    the ones the description names (``pimbs_hw.protocol.profiles.protocols_for``).
+    """
 
     def __init__(self, transport: Transport, robot, limits: SafetyLimits | None = None, *,
-                 connect_timeout_s: float = 1.0) -> None:
+                 connect_timeout_s: float = 1.0,
+                 protocols: Sequence[BoardProtocol] | None = None) -> None:
+        from pimbs_hw.protocol.profiles import protocols_for
+
         self.transport, self.robot = transport, robot
         self.limits = limits or SafetyLimits()
         specs = robot.muscles
@@ -129,51 +183,63 @@ class ArmDriver:
             if s.loadcell_n_per_count <= 0 or s.counts_per_m <= 0:
                 raise ValueError(f"muscle {s.name}: counts_per_m and loadcell_n_per_count must "
                                  "be positive (the protocol assumes more counts = more)")
-        self._index = {b: i for i, b in enumerate(self.board_ids)}
-        self.counts_per_m = np.array([s.counts_per_m for s in specs], float)
-        self.n_per_count = np.array([s.loadcell_n_per_count for s in specs], float)
-        self.offset_counts = np.array([s.loadcell_offset_counts for s in specs], float)
+        self.protocols = tuple(protocols if protocols is not None else protocols_for(robot))
+        self._proto: list[BoardProtocol | None] = [None] * len(specs)
+        for proto in self.protocols:
+            for i in proto.indices:
+                self._proto[i] = proto
+        if None in self._proto:
+            raise ValueError(f"{robot.name}: no board protocol for muscle "
+                             f"{self.muscles[self._proto.index(None)]}")
         self.f_floor = np.array([s.f_floor for s in specs], float)
         self.f_max = self.limits.ceilings(np.array([s.f_max for s in specs], float))
-        self.zero_counts = np.zeros(len(specs))
-        self._rx = [_Rx() for _ in specs]
-        self._joint_rx = [_Rx() for _ in robot.joints] if robot.joint_encoders else []
-        self._tx_counter = 0
-        self._last: list[Message] | None = None
+        self.zero_m = np.zeros(len(specs))  # encoder reading at the zero pose (``zero``)
+        self._rx = [_Rx(p.status_period_s, p.capabilities.counter) for p in self._proto]
+        self._joint_rx = ([_Rx(0.02, True) for _ in robot.joints] if robot.joint_encoders
+                          else [])
+        self._last: list[tuple[str, float]] | None = None
         self.tripped: SafetyStop | None = None
         self.closed = False
         self._configure(connect_timeout_s)
 
-    # -- conversions -----------------------------------------------------------------------
-    def _raw(self, tension: np.ndarray) -> np.ndarray:
-        raw = np.rint(self.offset_counts + tension / self.n_per_count)
-        return np.clip(raw, RAW_RANGE[0] + 1, RAW_RANGE[1] - 1).astype(int)  # rails = saturated
+    def protocol_of(self, i: int) -> BoardProtocol:
+        return self._proto[i]  # type: ignore[return-value]
 
     def _where(self, i: int) -> dict[str, object]:
         return {"muscle": self.muscles[i], "board_id": self.board_ids[i],
                 "port": self.transport.port}
 
     # -- set-up ----------------------------------------------------------------------------
+    def _board_limits(self, i: int) -> BoardLimits:
+        lim = self.limits
+        return BoardLimits(lim.watchdog_s, lim.tension_margin * self.f_max[i],  # commands
+                           float(lim.relax_targets(self.f_floor)[i]),  # stop at f_max
+                           lim.board_thermal_limit_c)
+
+    def _ready(self, i: int) -> bool:
+        rx, proto = self._rx[i], self._proto[i]
+        return rx.seen() and (not proto.capabilities.configure  # type: ignore[union-attr]
+                              or proto.configured(rx.faults))  # type: ignore[union-attr]
+
     def _configure(self, timeout_s: float) -> None:
         """Send limits, wait for every board to answer configured, then relax (safe start)."""
-        lim = self.limits
-        ceiling = self._raw(lim.tension_margin * self.f_max)  # commands stop at f_max
-        relax = self._raw(lim.relax_targets(self.f_floor))
-        limits = [SetLimits(b, 0, lim.watchdog_s, int(ceiling[i]), int(relax[i]),
-                            lim.board_thermal_limit_c) for i, b in enumerate(self.board_ids)]
+        setup = [frame for i, p in enumerate(self._proto)
+                 for frame in p.setup(i, self._board_limits(i))]  # type: ignore[union-attr]
         deadline = time.monotonic() + timeout_s
         while (left := deadline - time.monotonic()) > 0:
-            self._send_all(limits)  # repeated: a lost SET_LIMITS frame costs one round
+            self._send(setup)  # repeated: a lost setup frame costs one round
             self._pump(min(left, 0.2))
-            if all(rx.msg is not None and not rx.msg.faults & Fault.UNCONFIGURED
-                   for rx in self._rx) and all(rx.msg is not None for rx in self._joint_rx):
+            if all(self._ready(i) for i in range(len(self._rx))) and all(
+                    rx.seen(("angle_rad",)) for rx in self._joint_rx):
                 break
             for rx in self._rx:
-                rx.fresh = False  # wait for frames sent after this round's SET_LIMITS
-        missing = [i for i, rx in enumerate(self._rx)
-                   if rx.msg is None or rx.msg.faults & Fault.UNCONFIGURED]
+                rx.news.clear()  # wait for frames sent after this round's setup
+        missing = [i for i in range(len(self._rx)) if not self._ready(i)]
         if missing:
-            names = ", ".join(f"{self.muscles[i]} (board {self.board_ids[i]})" for i in missing)
+            names = ", ".join(f"{self.muscles[i]} (board {self.board_ids[i]}"
+                              + ("" if self._proto[i].name == "pimbs-v1"  # type: ignore
+                                 else f", {self._proto[i].describe()}") + ")"  # type: ignore
+                              for i in missing)
             hint = ("is the arm powered and the port right? for the simulated arm use "
                     "--port virtual" if len(missing) == len(self._rx) else "check that board")
             stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from {names}; "
@@ -183,22 +249,25 @@ class ArmDriver:
         # wait for the answers to that relax: faults latched in an earlier session (a host
         # that crashed) are cleared by it, and must not be read back from older frames
         for rx in self._rx:
-            rx.fresh = False
+            rx.news.clear()
         self._pump(max(0.05, deadline - time.monotonic()))
 
     # -- receive ---------------------------------------------------------------------------
     def _on_frame(self, frame: Frame) -> None:
-        try:
-            msg = decode(frame.arbitration_id, frame.data)
-        except CodecError:
-            board = board_of(frame.arbitration_id)
-            if board in self._index and frame.arbitration_id == frame_id(Status, board):
-                self._rx[self._index[board]].corrupt.append(frame.timestamp)
-            return
-        if isinstance(msg, Status) and msg.board_id in self._index:
-            self._rx[self._index[msg.board_id]].update(msg, frame.timestamp)
-        elif isinstance(msg, JointStatus) and msg.board_id < len(self._joint_rx):
-            self._joint_rx[msg.board_id].update(msg, frame.timestamp)
+        for proto in self.protocols:
+            try:
+                updates = proto.decode(frame.arbitration_id, frame.data)
+            except CorruptFrame as bad:
+                self._rx[bad.muscle].corrupt.append(frame.timestamp)
+                return
+            for u in updates:
+                if u.joint:
+                    if u.muscle < len(self._joint_rx):
+                        self._joint_rx[u.muscle].update(u, frame.timestamp)
+                else:
+                    self._rx[u.muscle].update(u, frame.timestamp)
+            if updates:
+                return
 
     def _pump(self, timeout: float) -> None:
         """Process received frames; wait up to ``timeout`` until every board has news."""
@@ -208,7 +277,7 @@ class ArmDriver:
                 frame = self.transport.recv(0.0)
                 if frame is None:
                     remaining = deadline - time.monotonic()
-                    if remaining <= 0 or all(rx.fresh for rx in self._rx):
+                    if remaining <= 0 or all(rx.fresh() for rx in self._rx):
                         return
                     frame = self.transport.recv(remaining)
                     if frame is None:
@@ -222,29 +291,37 @@ class ArmDriver:
         lim = self.limits
         for i, rx in enumerate(self._rx):
             where = self._where(i)
-            age = now - rx.time
+            age, name = rx.age(now)
             if age > lim.silent_after_s:
-                self._trip(BoardSilent(f"no status for {age:.2f} s (limit "
+                what = "status" if self._proto[i].name == "pimbs-v1" else (  # type: ignore
+                    f"{name.split('_')[0]} reading")
+                self._trip(BoardSilent(f"no {what} for {age:.2f} s (limit "
                                        f"{lim.silent_after_s} s)", **where))
             if (n := rx.corrupt_in_last_second(now)) > lim.corrupt_per_s:
                 self._trip(CorruptFrames(f"{n} status frames failed their CRC in 1 s", **where))
             loss, n = rx.loss(now, lim.loss_window_s)
             if n >= 4 and loss > lim.max_loss:
+                how = "counter gaps" if rx.counted else "arrival rate"
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
-                                         f"{lim.loss_window_s} s (counter gaps)", **where))
-            msg = rx.msg
-            if (found := fault_stop(msg.faults)) is not None:
+                                         f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
+                                         **where))
+            if (found := fault_stop(rx.faults)) is not None:
                 self._trip(found[0](found[1], **where))
-            if msg.temperature_c >= lim.fault_c:
-                self._trip(Overheat(f"{msg.temperature_c:.1f} °C >= {lim.fault_c} °C", **where))
-            tension = (msg.loadcell_raw - self.offset_counts[i]) * self.n_per_count[i]
+            if rx.saturated:
+                self._trip(LoadcellSaturated("loadcell reading at its rail: the tension is "
+                                             "unknown", **where))
+            temperature = rx.values["temperature_c"]
+            if temperature >= lim.fault_c:
+                self._trip(Overheat(f"{temperature:.1f} °C >= {lim.fault_c} °C", **where))
+            tension = rx.values["tension_n"]
             if tension > lim.tension_margin * self.f_max[i]:
                 self._trip(TensionLimit(f"{tension:.1f} N > {lim.tension_margin:g} x ceiling "
                                         f"{self.f_max[i]:.1f} N", **where))
         for j, rx in enumerate(self._joint_rx):
-            if now - rx.time > lim.silent_after_s:
+            if now - rx.times["angle_rad"] > lim.silent_after_s:
                 self._trip(BoardSilent(f"joint encoder {self.robot.joints[j]} (frame id "
-                                       f"0x{0x240 + j:03X}) silent for {now - rx.time:.2f} s",
+                                       f"0x{0x240 + j:03X}) silent for "
+                                       f"{now - rx.times['angle_rad']:.2f} s",
                                        port=self.transport.port))
 
     def read_state(self, timeout: float = 0.05) -> ArmState:
@@ -253,33 +330,36 @@ class ArmDriver:
         self._pump(timeout)
         now = time.monotonic()
         self._check(now)
-        msgs = [rx.msg for rx in self._rx]
-        counts = np.array([m.position_counts for m in msgs], float)
-        raw = np.array([m.loadcell_raw for m in msgs], float)
+        rxs = self._rx
         state = ArmState(
             time=now, muscles=self.muscles,
-            length=(counts - self.zero_counts) / self.counts_per_m,
-            tension=(raw - self.offset_counts) * self.n_per_count,
-            temperature=np.array([m.temperature_c for m in msgs]),
-            faults=tuple(m.faults for m in msgs),
-            seq=np.array([m.counter for m in msgs]),
-            age=np.array([now - rx.time for rx in self._rx]),
-            fresh=np.array([rx.fresh for rx in self._rx]),
-            theta=(np.array([rx.msg.angle_rad for rx in self._joint_rx])
+            length=np.array([rx.values["position_m"] for rx in rxs]) - self.zero_m,
+            tension=np.array([rx.values["tension_n"] for rx in rxs]),
+            temperature=np.array([rx.values["temperature_c"] for rx in rxs]),
+            faults=tuple(rx.faults for rx in rxs),
+            seq=np.array([-1 if rx.counter is None else rx.counter for rx in rxs]),
+            age=np.array([rx.age(now)[0] for rx in rxs]),
+            fresh=np.array([rx.fresh() for rx in rxs]),
+            theta=(np.array([rx.values["angle_rad"] for rx in self._joint_rx])
                    if self._joint_rx else None))
-        for rx in (*self._rx, *self._joint_rx):
-            rx.fresh = False
+        for rx in (*rxs, *self._joint_rx):
+            rx.news.clear()
         self._state = state
         return state
 
     # -- send ------------------------------------------------------------------------------
-    def _send_all(self, msgs: list[Message]) -> None:
-        self._tx_counter = (self._tx_counter + 1) & 0xF
+    def _send(self, frames: list[tuple[int, bytes]]) -> None:
         try:
-            for msg in msgs:
-                self.transport.send(*encode(dataclasses.replace(msg, counter=self._tx_counter)))
+            for frame in frames:
+                self.transport.send(*frame)
         except SafetyStop as stop:
             self._trip(stop)
+
+    def _send_commands(self, commands: list[tuple[str, float]]) -> None:
+        frames = [frame for i, (kind, value) in enumerate(commands)
+                  for frame in self._proto[i].command(i, kind, value)]  # type: ignore
+        self._send(frames)
+        self._last = commands
 
     def _refuse_if_tripped(self) -> None:
         if self.tripped is not None:
@@ -287,7 +367,7 @@ class ArmDriver:
         if self.closed:
             raise RuntimeError("ArmDriver is closed")
 
-    def _modes(self, mode: str | Sequence[str]) -> list[type[Message]]:
+    def _modes(self, mode: str | Sequence[str]) -> list[str]:
         names = [mode] * len(self.muscles) if isinstance(mode, str) else list(mode)
         if len(names) != len(self.muscles) or any(n not in _MODES for n in names):
             raise ValueError(f"mode must be one of {sorted(_MODES)} or a list of "
@@ -306,27 +386,27 @@ class ArmDriver:
         kinds = self._modes(mode)
         values = np.broadcast_to(np.asarray(np.nan if values is None else values, float),
                                  (len(self.muscles),))
-        temperature = np.array([rx.msg.temperature_c for rx in self._rx])
+        # no temperature reported: derate from the ambient (the host cannot see heat)
+        temperature = np.nan_to_num([rx.values["temperature_c"] for rx in self._rx], nan=25.0)
         tension = self.limits.clamp_tension(np.nan_to_num(values, nan=0.0), self.f_floor,
                                             self.f_max, temperature)
-        raw = self._raw(tension)
-        counts = np.rint(self.zero_counts + values * self.counts_per_m)
-        msgs: list[Message] = []
-        for i, (kind, board) in enumerate(zip(kinds, self.board_ids, strict=True)):
-            if kind is Relax:
-                msgs.append(Relax(board, 0))
+        commands: list[tuple[str, float]] = []
+        for i, kind in enumerate(kinds):
+            if kind == "relax":
+                commands.append(("relax", 0.0))
                 continue
             if not np.isfinite(values[i]):
                 raise ValueError(f"muscle {self.muscles[i]}: command {values[i]} is not finite")
-            if kind is TensionCommand:
-                msgs.append(TensionCommand(board, 0, int(raw[i])))
-            elif not POSITION_RANGE[0] <= counts[i] <= POSITION_RANGE[1]:
-                raise ValueError(f"muscle {self.muscles[i]}: length {values[i]:.4f} m is outside "
-                                 f"the encoder range of the protocol")
-            else:
-                msgs.append(PositionCommand(board, 0, int(counts[i])))
-        self._send_all(msgs)
-        self._last = msgs
+            if kind == "tension":
+                commands.append(("tension", float(tension[i])))
+                continue
+            position = float(values[i] + self.zero_m[i])
+            lo, hi = self._proto[i].position_range_m(i)  # type: ignore[union-attr]
+            if not lo <= position <= hi:
+                raise ValueError(f"muscle {self.muscles[i]}: length {values[i]:.4f} m is "
+                                 f"outside the encoder range of the protocol")
+            commands.append(("length", position))
+        self._send_commands(commands)
 
     def hold(self) -> None:
         """Repeat the last command (feeds the watchdogs while waiting in a pose)."""
@@ -334,7 +414,7 @@ class ArmDriver:
         if self._last is None:
             self.relax()
         else:
-            self._send_all(self._last)
+            self._send_commands(self._last)
 
     def dwell(self, seconds: float, period: float = 0.02) -> ArmState:
         """Hold the pose for ``seconds``, feeding the watchdogs and checking limits."""
@@ -350,37 +430,55 @@ class ArmDriver:
 
     def relax(self) -> None:
         """Every muscle to its low pre-tension (tension control at f_floor), never slack."""
-        msgs = [Relax(b, 0) for b in self.board_ids]
-        self._send_all(msgs)
-        self._last = msgs
+        self._send_commands([("relax", 0.0)] * len(self.muscles))
 
     def stop(self) -> None:
         """Every motor holds its current length (emergency; prefer ``relax``)."""
-        msgs = [Stop(b, 0) for b in self.board_ids]
-        self._send_all(msgs)
-        self._last = msgs
+        self._send_commands([("stop", 0.0)] * len(self.muscles))
 
     def zero(self, lengths=None) -> None:
         """Declare the current encoder positions to be ``lengths`` (default 0 m)."""
         self.read_state()
-        counts = np.array([rx.msg.position_counts for rx in self._rx], float)
-        target = np.zeros(len(counts)) if lengths is None else np.asarray(lengths, float)
-        self.zero_counts = counts - target * self.counts_per_m
+        position = np.array([rx.values["position_m"] for rx in self._rx])
+        target = np.zeros(len(position)) if lengths is None else np.asarray(lengths, float)
+        self.zero_m = position - target
+
+    def set_zero(self, zero_m) -> None:
+        """Use encoder zeros measured earlier (``pimbs zero``): reading at the zero pose, m."""
+        zero_m = np.asarray(zero_m, float)
+        if zero_m.shape != (len(self.muscles),) or not np.isfinite(zero_m).all():
+            raise ValueError(f"zero positions must be {len(self.muscles)} finite numbers")
+        self.zero_m = zero_m.copy()
 
     # -- stop and close --------------------------------------------------------------------
     def _trip(self, stop: SafetyStop) -> None:
-        """Relax every board we can still reach, remember the stop, raise it."""
+        """Relax every board we can still reach, remember the stop, raise it.
+
+        ``stop.end_state`` names the state the arm is left in: relaxed by the driver, or,
+        when the boards cannot be reached, what each protocol's boards do by themselves.
+        """
         if self.tripped is None:
             self.tripped = stop
-            self._relax_quietly()
+            reached = self._relax_quietly()
+            stop.end_state = ("relaxed: every board at its holding floor" if reached else
+                              "; ".join(p.unreachable(self.limits.watchdog_s)
+                                        for p in self.protocols if p.indices))
         raise stop
 
-    def _relax_quietly(self) -> None:
+    def _relax_quietly(self) -> bool:
+        """Send every board its relax; False when the link refused (bus-off, unplugged)."""
+        send = self.transport.send
+        if hasattr(self.transport, "usable"):
+            if not self.transport.usable():
+                return False  # bus-off or a lost link: nothing we send arrives
+            send = self.transport.send_despite_fault
         try:
-            for b in self.board_ids:
-                self.transport.send(*encode(Relax(b, 0)))
+            for i, proto in enumerate(self._proto):
+                for frame in proto.command(i, "relax"):  # type: ignore[union-attr]
+                    send(*frame)
         except Exception:  # noqa: BLE001 - bus-off/unplugged: the board watchdogs relax
-            pass
+            return False
+        return True
 
     def close(self) -> None:
         """Relax the arm and release the transport (idempotent)."""

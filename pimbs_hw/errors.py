@@ -10,6 +10,7 @@ class HardwareError(RuntimeError):
 class PortError(HardwareError):
     """A port could not be opened; the message names the port and what to do about it."""
 
-    def __init__(self, port: str, message: str) -> None:
+    def __init__(self, port: str, message: str, problem: str | None = None) -> None:
         self.port = port
+        self.problem = problem or message  # what went wrong, without advice (for re-wording)
         super().__init__(message)

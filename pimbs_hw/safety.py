@@ -28,6 +28,7 @@ class SafetyStop(HardwareError):
     def __init__(self, detail: str, *, muscle: str | None = None, board_id: int | None = None,
                  port: str | None = None) -> None:
         self.muscle, self.board_id, self.port, self.detail = muscle, board_id, port, detail
+        self.end_state = "relaxed"  # set by the driver when it stops: the state it left
         where = []
         if muscle is not None:
             where.append(f"muscle {muscle} (board {board_id})")

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from pimbs_calibration.arm_model import ArmModel, Equilibrium, InfeasiblePoseError, sample_poses
-from pimbs_calibration.description import builtin_robots
+from pimbs_calibration.description import DescriptionError, builtin_robots
 
 ROBOTS = Path(__file__).resolve().parents[1] / "calibration" / "robots"
 
@@ -107,17 +107,27 @@ def test_tension_distribution_weighted(two_link):
                                two_link.gravity_torque(theta), atol=1e-9)
 
 
-def test_infeasible_pose_raises(tmp_path):
-    # Only the two shoulder muscles: nothing can hold the elbow against gravity.
+def test_one_sided_joint_refused_at_load_naming_file_and_joint(tmp_path):
+    # Only the two shoulder muscles: nothing can turn (or hold) the elbow.
     for name in ("two-link-4-muscle.urdf", "two-link-4-muscle.muscles.yaml"):
         shutil.copy(ROBOTS / name, tmp_path / name)
     path = tmp_path / "two-link-4-muscle.muscles.yaml"
     raw = yaml.safe_load(path.read_text())
-    raw["muscles"] = raw["muscles"][:2]
+    raw["muscles"] = raw["muscles"][:3]  # m3, the only elbow extensor, removed
     path.write_text(yaml.safe_dump(raw))
-    arm = ArmModel.load(path)
-    with pytest.raises(InfeasiblePoseError, match="elbow_pitch"):
-        arm.tension_distribution(np.array([0.0, 0.4]), 0.0)
+    with pytest.raises(DescriptionError, match="'elbow_pitch': no muscle turns it towards "
+                       "negative") as err:
+        ArmModel.load(path)
+    assert str(path) in str(err.value) and err.value.field == "joints[1]"
+
+
+def test_tension_ceiling_makes_a_pose_infeasible(arm):
+    theta = arm.joint_range.mean(axis=1)
+    free = arm.tension_distribution(theta, 250.0)
+    assert np.allclose(arm.tension_distribution(theta, 250.0, f_max=free.max() + 1), free)
+    with pytest.raises(InfeasiblePoseError, match=arm.joints[0]) as err:
+        arm.tension_distribution(theta, 250.0, f_max=free.max() - 1)
+    assert str(arm.robot.muscle_path) in str(err.value) and "pimbs robot" in str(err.value)
 
 
 def _corners(arm: ArmModel) -> np.ndarray:

@@ -1,9 +1,11 @@
 """What to command for each sample: the seeded pose sequence and the tensions that hold it.
 
 Everything random is drawn up front from the seed, with the same streams as
-``pimbs_calibration.simulate`` (poses from ``[seed, 0]``, ATL tension floors from ``[seed, 1]``), so
-a collection and ``pimbs simulate`` of one seed command the same poses in the same order
-(their rows pair up by ``sample``), and ``--resume`` continues the very same sequence.
+``pimbs_calibration.simulate`` (``pimbs_calibration.poses``: poses from ``[seed, 0]``, ATL
+tension floors from ``[seed, 1]``, replacements of poses the muscles cannot hold within f_max
+from ``[seed, 3, i]``), so a collection and ``pimbs simulate`` of one seed command the same
+poses in the same order (their rows pair up by ``sample``), and ``--resume`` continues the
+very same sequence, which holds no pose the model knows to be infeasible.
 
 Approach directions (stream ``[seed, 2]``): capstan friction makes a loadcell read more or
 less than the joint-side tension depending on the direction of the wire's last motion, and
@@ -26,10 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_calibration.approach import BAND_M
-from pimbs_calibration.arm_model import ArmModel, sample_poses
-from pimbs_calibration.simulate import ATL_F_MIN
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.poses import ATL_F_MIN, MAPS, hold_ceiling, plan_poses
 
-MAPS = ("al", "atl")
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
 OVERSHOOT_CEILING = 0.75  # no wire is overshot beyond this fraction of f_max
 MAX_POSE_EXCURSION = 0.2  # rad the held overshoot may move a joint
@@ -71,22 +72,17 @@ class CollectionPlan:
         floor = np.array([m.f_floor for m in model.robot.muscles])
         # A real wire is never commanded slack: the AL-Map's f_min = 0 becomes each floor.
         self.pretension = floor if pretension is None else np.asarray(pretension, float)
-        self.poses = sample_poses(model.joint_range, n_samples,
-                                  np.random.default_rng([seed, 0]))
-        if map_kind == "atl":
-            drawn = np.random.default_rng([seed, 1]).uniform(
-                *ATL_F_MIN, (n_samples, model.n_muscles))
-            self.f_min = np.maximum(drawn, floor)
-        else:
-            self.f_min = np.broadcast_to(floor, (n_samples, model.n_muscles)).copy()
+        poses = plan_poses(model, n_samples, seed, map_kind)
+        self.poses, self.f_min, self.replaced = poses.poses, poses.floors, poses.replaced
+        self.ceiling = hold_ceiling(model)
         self.floor = floor
         self.directions = np.random.default_rng([seed, 2]).choice(
             np.array([-1, 1], dtype=np.int8), (n_samples, model.n_muscles))
 
     def target(self, i: int) -> Target:
-        """Commands for sample ``i``; raises ``InfeasiblePoseError`` if no tensions hold it."""
+        """Commands for sample ``i`` (every planned pose is feasible, see ``poses``)."""
         model, theta = self.model, self.poses[i]
-        tension = model.tension_distribution(theta, self.f_min[i])
+        tension = model.tension_distribution(theta, self.f_min[i], f_max=self.ceiling)
         held = held_muscles(model.muscle_jacobian(theta), tension)
         h = model.h_geom(theta)
         hold_command = np.where(held, h - model.stretch(tension), tension)
@@ -139,7 +135,8 @@ class CollectionPlan:
         """Metadata keys that identify the sequence (checked when resuming)."""
         return {"seed": self.seed, "samples": self.n_samples, "map": self.map_kind,
                 "f_min": [float(self.pretension.min()), float(self.pretension.max())]
-                if self.map_kind == "al" else list(ATL_F_MIN)}
+                if self.map_kind == "al" else list(ATL_F_MIN),
+                "replaced_poses": list(self.replaced)}
 
 
 def held_muscles(G: np.ndarray, tension: np.ndarray, slack: float = 0.5) -> np.ndarray:

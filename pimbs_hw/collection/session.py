@@ -10,11 +10,15 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator, Sequence
 
+import numpy as np
+
 from pimbs_calibration.description import RobotDescription
 from pimbs_calibration.effects import parse_effect
 from pimbs_hw import is_simulated, open_arm
 from pimbs_hw.collection.link import DriverLink
+from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.errors import HardwareError
+from pimbs_hw.mock.arm import served_in_process
 from pimbs_hw.safety import (
     BoardSilent,
     BusOff,
@@ -43,8 +47,8 @@ class ConnectError(HardwareError):
 
 @contextlib.contextmanager
 def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
-              conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0
-              ) -> Iterator[DriverLink]:
+              conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0,
+              zero_m=None) -> Iterator[DriverLink]:
     """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``).
 
     On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
@@ -54,7 +58,10 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed, limits=SIMULATED_LIMITS if is_simulated(port) else None))
+                speed=speed,
+                limits=SIMULATED_LIMITS if is_simulated(port) or served_in_process(port)
+                else None,
+                zero_m=zero_m))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
@@ -65,11 +72,12 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         yield DriverLink(driver, mock)
 
 
+_ADVICE_TENSION = "check that wire for a snag or a jump off its pulley, and its f_max"
 _ADVICE: tuple[tuple[type[SafetyStop], str], ...] = (
     (BoardSilent, "check that board's power, CAN cable and connectors"),
     (Overheat, "let that motor cool down; a long run at high tension heats it (--map al "
                "holds lower tensions)"),
-    (TensionLimit, "check that wire for a snag or a jump off its pulley, and its f_max"),
+    (TensionLimit, _ADVICE_TENSION),
     (LoadcellSaturated, "check that loadcell's wiring and its calibration in the robot file"),
     (FramesDropped, "check the bus wiring, termination (120 ohm at both ends) and bitrate"),
     (CorruptFrames, "check the bus wiring, termination (120 ohm at both ends) and bitrate"),
@@ -80,8 +88,39 @@ _ADVICE: tuple[tuple[type[SafetyStop], str], ...] = (
 )
 
 
-def stop_advice(stop: SafetyStop) -> str:
-    """The stop's message plus what to do about it before ``--resume``."""
+def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
+                sample: int | None = None) -> str:
+    """The stop's message plus what to do about it before ``--resume``.
+
+    A tension ceiling names the pose and what the model says about it: if the plan needed
+    that tension the plan is wrong (an infeasible pose; resuming would stop there again),
+    otherwise the wire met something the model does not know (a snag).
+    """
     todo = next((text for kind, text in _ADVICE if isinstance(stop, kind)),
                 "inspect the arm")
-    return f"{stop}. The arm was relaxed. What to do: {todo}; then rerun with --resume."
+    state = getattr(stop, "end_state", "relaxed")
+    state = "The arm was relaxed" if state == "relaxed" else f"Arm left {state}"
+    if isinstance(stop, TensionLimit) and plan is not None and sample is not None \
+            and sample < plan.n_samples:
+        return f"{stop}. {state}. {ceiling_verdict(stop, plan, sample)}"
+    return f"{stop}. {state}. What to do: {todo}; then rerun with --resume."
+
+
+def ceiling_verdict(stop: TensionLimit, plan: CollectionPlan, sample: int) -> str:
+    """Where the ceiling was reached and whether the model's plan asked for that tension."""
+    model = plan.model
+    target = plan.target(sample)
+    # the most the plan asks of each wire: the holding tension, or a tension overshoot
+    asked = np.where(target.held, target.tension,
+                     np.maximum(target.tension, target.overshoot_command))
+    names = list(model.muscles)
+    k = names.index(stop.muscle) if stop.muscle in names else int(np.argmax(asked / model.f_max))
+    pose = ", ".join(f"{j}={t:.3f}" for j, t in zip(model.joints, target.theta, strict=True))
+    where = (f"At sample {sample} (pose {pose} rad) the model's plan asks at most "
+             f"{asked[k]:.0f} N of {names[k]} (f_max {model.f_max[k]:.0f} N): ")
+    if asked[k] >= model.f_max[k]:
+        return (where + "the plan needed that tension (an infeasible pose); this sample "
+                "would stop again on --resume. Check the robot description with `pimbs robot` "
+                "(routing, masses, f_max) before resuming")
+    return (where + "the plan did not need that tension, so something the model does not "
+            f"know pulled it (a snag). What to do: {_ADVICE_TENSION}; then rerun with --resume")

@@ -1,10 +1,12 @@
 """Simulated muscle boards on a bus: the whole arm, runnable in a background thread.
 
 ``MockArm`` speaks the board protocol on a python-can bus (``virtual:NAME`` in-process, or
-any port a CAN transport accepts, e.g. ``udp_multicast`` or ``vcan0`` across processes) or on
-a pty (``link="pty"``; the driver opens ``mock.port``). Behind the boards is ``Plant``: the
-arm model's static equilibrium with first-order settling, noisy sensors, load heating, an
-optional concealed effect (``effects.py``) and injected faults (``faults.py``).
+any port a CAN transport accepts, e.g. ``vcan0`` across processes on one host) or on
+a pty (``link="pty"``; the driver opens ``mock.port``), or behind an emulated SLCAN USB-CAN
+adapter on a pty (``link="slcan"``; ``mock.port`` is ``slcan:/dev/pts/N`` for python-can).
+Behind the boards is ``Plant``: the arm model's static equilibrium with first-order
+settling, noisy sensors, load heating, an optional concealed effect (``effects.py``) and
+injected faults (``faults.py``).
 
     with MockArm(robot, "virtual:demo", speed=10, faults=["overheat:m1@3"]) as mock:
         ...  # ArmDriver(CanTransport(mock.port), robot)
@@ -22,21 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from pimbs_hw.errors import HardwareError
-from pimbs_hw.mock.board import RAW_MAX, RAW_MIN, TEMP_MAX, TEMP_MIN, Reading, SimBoard
+from pimbs_hw.mock.boards import ProfileBoard, SiReading, V1Board
 from pimbs_hw.mock.effects import EffectStack
 from pimbs_hw.mock.faults import FaultSpec, parse_faults
 from pimbs_hw.mock.plant import Plant
-from pimbs_hw.protocol.codec import (
-    MAX_BOARDS,
-    CodecError,
-    JointStatus,
-    Status,
-    decode,
-    encode,
-    signal_range,
-)
+from pimbs_hw.protocol.codec import MAX_BOARDS, JointStatus, encode, signal_range
 from pimbs_hw.transport import CanTransport, PtyMaster, SerialTransport, Transport
 from pimbs_hw.transport.base import CAN_ERR_BUSOFF
+
+CAN_ERR_PROT = 0x08  # SocketCAN error class: protocol violation (a frame failed CAN's CRC)
 
 log = logging.getLogger(__name__)
 OVERHEAT_RATE_C_PER_S = 400.0  # injected thermal runaway: past any limit within 0.15 s
@@ -62,10 +58,24 @@ class MockSnapshot:
                 & (np.abs(self.tension - self.relax_tension) < tol))
 
 
+IN_PROCESS: set[str] = set()  # ports served by a MockArm running in this process
+
+
+def served_in_process(port: str) -> bool:
+    """Whether simulated boards in this very process answer on ``port`` (they share its
+    CPU and GIL with the driver, unlike real boards)."""
+    return port in IN_PROCESS
+
+
 def _open_link(link: str) -> tuple[Transport, str]:
     if link == "pty":
         master = PtyMaster()
         return SerialTransport(master, name=f"mock pty {master.slave_path}"), master.slave_path
+    if link == "slcan":
+        from pimbs_hw.mock.slcan import SlcanAdapter
+
+        adapter = SlcanAdapter()
+        return adapter, adapter.port
     return CanTransport(link), link
 
 
@@ -74,7 +84,8 @@ class MockArm:
 
     def __init__(self, robot, link: str = "virtual", *, model=None, effect=None,
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
-                 status_period_s: float = 0.02, noise: bool = True) -> None:
+                 status_period_s: float = 0.02, noise: bool = True,
+                 encoder_offset_m=None) -> None:
         from pimbs_calibration.arm_model import ArmModel
         from pimbs_calibration.description import load_robot
 
@@ -91,10 +102,17 @@ class MockArm:
         self.plant = Plant(self.model, speed=speed,
                            ambient_c=25.0 + (self.rng.normal(0, 0.5, m) if noise else 0.0))
         now = time.monotonic()
-        self.boards = [SimBoard(spec, now) for spec in self.robot.muscles]
-        self._by_id = {spec.board_id: i for i, spec in enumerate(self.robot.muscles)}
-        if len(self._by_id) != m or not all(0 <= b < MAX_BOARDS for b in self._by_id):
+        # incremental encoders power up anywhere: the host must zero them (``pimbs zero``)
+        self.encoder_offset_m = (np.zeros(m) if encoder_offset_m is None
+                                 else np.broadcast_to(np.asarray(encoder_offset_m, float),
+                                                      (m,)).copy())
+        self.boards = [self._board(spec, now) for spec in self.robot.muscles]
+        ids = {spec.board_id for spec in self.robot.muscles}
+        if len(ids) != m or not all(0 <= b < MAX_BOARDS for b in ids):
             raise ValueError(f"{self.robot.name}: board ids must be unique in 0..{MAX_BOARDS - 1}")
+        self._by_frame = {fid: i for i, b in enumerate(self.boards) for fid in b.frame_ids}
+        self._home = False
+        self._sent: dict[int, int] = {}  # frames sent per id (drop-frames keeps every 4th)
         try:
             self.transport, self.port = _open_link(link)
         except BaseException:
@@ -110,18 +128,29 @@ class MockArm:
         self._active: set[FaultSpec] = set()
         self._bus_off = False
         self._joint_counter = 0
-        self._next_status = np.full(m, now)
         self._next_joints = self._last_tick = now
         self._readings = self._read_all(self.plant.state)
 
+    def _board(self, spec, now: float):
+        from pimbs_hw.protocol.profiles import muscle_protocol, profile_path
+
+        name = muscle_protocol(spec)
+        if name == "pimbs-v1":
+            return V1Board(spec, now, self.status_period_s)
+        from pimbs_hw.protocol.profile import load_profile
+
+        return ProfileBoard(spec, load_profile(profile_path(name)), now)
+
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
+        IN_PROCESS.add(self.port)
         self._thread = threading.Thread(target=self._run, name=f"mock-arm {self.port}",
                                         daemon=True)
         self._thread.start()
         return self
 
     def stop(self) -> None:
+        IN_PROCESS.discard(self.port)
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
@@ -141,13 +170,17 @@ class MockArm:
     def snapshot(self) -> MockSnapshot:
         with self._lock:
             s = self.plant.state
-            relax = np.array([(b.relax_raw - b.spec.loadcell_offset_counts)
-                              * b.spec.loadcell_n_per_count for b in self.boards])
+            relax = np.array([b.relax_n for b in self.boards])
             true_relax = self.effects.true_tension(self.model, relax, s.approach, s.temperature)
             return MockSnapshot(s.theta.copy(), s.tension.copy(), s.length.copy(),
                                 s.temperature.copy(), tuple(b.mode for b in self.boards),
                                 true_relax, tuple(f"{f.kind}:{f.muscle or '*'}"
                                                   for f in self._active))
+
+    def hold_home(self, on: bool = True) -> None:
+        """Someone holds the arm at its home pose (all joints 0 rad), e.g. to zero it."""
+        with self._lock:
+            self.plant.hold_home(on)
 
     def settled(self) -> bool:
         with self._lock:
@@ -177,22 +210,20 @@ class MockArm:
     def _on_frame(self, frame) -> None:
         if self._bus_off:
             return
-        try:
-            msg = decode(frame.arbitration_id, frame.data)
-        except CodecError:
-            return  # a board drops what fails its CRC; the host's watchdog story covers it
-        i = self._by_id.get(msg.board_id)
-        if i is None or isinstance(msg, Status | JointStatus):
+        i = self._by_frame.get(frame.arbitration_id)
+        if i is None:
             return
         now = time.monotonic()
         with self._lock:
-            self.boards[i].receive(msg, now, self._readings[i])
+            reply = self.boards[i].receive(frame.arbitration_id, frame.data, now,
+                                           self._readings[i])
         # The plant gets the new commands once the frames that arrived together are all in
         # (see _run): one host cycle reaches real boards within a fraction of a millisecond,
         # and the equilibrium solver (tens of ms, more on a loaded machine) must not freeze
         # the arm on a half-updated set of commands for that long.
         self._commanded = True
-        self._send_status(i, now)
+        if reply:
+            self._send_status(i, now, reply=True)
 
     def _tick(self, now: float) -> None:
         self._cycles += 1
@@ -204,15 +235,16 @@ class MockArm:
             for board, reading in zip(self.boards, self._readings, strict=True):
                 board.supervise(now, reading)
             self._actuate()
-        for i in np.flatnonzero(now >= self._next_status):
-            self._send_status(int(i), now)
+        for i in range(len(self.boards)):
+            self._send_status(i, now)
         if self.robot.joint_encoders and now >= self._next_joints:
             self._next_joints = now + self.status_period_s
             self._send_joints(state)
 
     def _actuate(self) -> None:
         modes, values = zip(*(b.actuation() for b in self.boards), strict=True)
-        values = np.array(values)
+        values = np.array(values, float)
+        values = np.where(np.array(modes) == "length", values - self.encoder_offset_m, values)
         tension = np.array([m == "tension" for m in modes])
         if tension.any():  # boards servo on the loadcell reading: find the true tension
             s = self.plant.state
@@ -220,24 +252,18 @@ class MockArm:
             values = np.where(tension, true, values)
         self.plant.command(tuple(modes), values)
 
-    def _read_all(self, state) -> list[Reading]:
-        """Every board's sensors: encoder counts, noisy loadcell (through the effects), °C."""
+    def _read_all(self, state) -> list[SiReading]:
+        """Every board's sensors: encoder, noisy loadcell (through the effects), °C."""
         tension = self.effects.read_tension(self.model, state.tension, state.approach,
                                             state.temperature)
         temperature = state.temperature
         if self.noise:
             tension = tension + self.rng.normal(0.0, 0.3, len(tension))
             temperature = temperature + self.rng.normal(0.0, 0.1, len(temperature))
-        readings = []
-        for i, board in enumerate(self.boards):
-            spec = board.spec
-            raw = round(spec.loadcell_offset_counts + tension[i] / spec.loadcell_n_per_count)
-            if self._fault_on("saturate-loadcell", spec.name):
-                raw = RAW_MAX
-            readings.append(Reading(round(state.length[i] * spec.counts_per_m),
-                                    int(np.clip(raw, RAW_MIN, RAW_MAX)),
-                                    float(np.clip(temperature[i], TEMP_MIN, TEMP_MAX))))
-        return readings
+        return [SiReading(float(state.length[i] + self.encoder_offset_m[i]), float(tension[i]),
+                          float(temperature[i]),
+                          self._fault_on("saturate-loadcell", board.spec.name))
+                for i, board in enumerate(self.boards)]
 
     # -- faults ----------------------------------------------------------------------------
     def _fault_on(self, kind: str, muscle: str | None = None) -> bool:
@@ -256,21 +282,25 @@ class MockArm:
             OVERHEAT_RATE_C_PER_S if self._fault_on("overheat", name) else 0.0
             for name in self.muscles]
 
-    def _send_status(self, i: int, now: float) -> None:
+    def _send_status(self, i: int, now: float, reply: bool = False) -> None:
         board = self.boards[i]
-        self._next_status[i] = now + self.status_period_s
         name = board.spec.name
         with self._lock:
-            fid, data = encode(board.status(self._readings[i]))
+            frames = board.frames(now, self._readings[i], reply)
         if self._bus_off or self._fault_on("silent-board", name):
             return
-        if self._fault_on("drop-frames", name) and board.counter % DROP_KEEP_EVERY:
-            return
-        if self._fault_on("corrupt-frames", name):
-            bad = bytearray(data)
-            bad[1 + int(self.rng.integers(len(data) - 1))] ^= 1 << int(self.rng.integers(8))
-            data = bytes(bad)
-        self._send(fid, data)
+        for fid, data in frames:
+            self._sent[fid] = self._sent.get(fid, 0) + 1
+            if self._fault_on("drop-frames", name) and self._sent[fid] % DROP_KEEP_EVERY:
+                continue
+            if self._fault_on("corrupt-frames", name):
+                if not board.checksum:  # CAN's own CRC fails: the controllers see an error
+                    self.transport.send_error(CAN_ERR_PROT)  # frame, the frame is lost
+                    continue
+                bad = bytearray(data)
+                bad[1 + int(self.rng.integers(len(data) - 1))] ^= 1 << int(self.rng.integers(8))
+                data = bytes(bad)
+            self._send(fid, data)
 
     def _send_joints(self, state) -> None:
         if self._bus_off:

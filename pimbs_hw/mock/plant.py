@@ -39,6 +39,7 @@ class _Solver:
         self._stopped = False
         self._theta = theta0
         self.target = None  # latest Equilibrium
+        self.home = False  # someone holds the arm at its home pose (theta = 0)
         self._thread = threading.Thread(target=self._run, name="mock-equilibrium", daemon=True)
         self._thread.start()
 
@@ -61,7 +62,8 @@ class _Solver:
                 (modes, values), self._pending = self._pending, None
                 self._busy = True
             try:
-                eq = self._model.equilibrium(list(modes), values, theta0=self._theta)
+                eq = (self._held_home(modes, values) if self.home else
+                      self._model.equilibrium(list(modes), values, theta0=self._theta))
             except Exception as exc:  # noqa: BLE001 - a failed solve keeps the previous target
                 log.warning("mock arm: equilibrium failed for %s %s: %s", modes, values, exc)
                 eq = None
@@ -69,6 +71,19 @@ class _Solver:
                 if eq is not None:
                     self.target, self._theta = eq, np.asarray(eq.theta, float)
                 self._busy = False
+
+    def _held_home(self, modes, values):
+        """The state with the joints held at 0: each wire's own statics, no pose to solve."""
+        from types import SimpleNamespace
+
+        model = self._model
+        theta = np.zeros(model.n_joints)
+        h = model.h_geom(theta)
+        values = np.asarray(values, float)
+        tension = np.where(np.array(modes) == "tension", np.maximum(values, 0.0),
+                           model.tension_from_stretch(h - values))
+        return SimpleNamespace(theta=theta, tension=tension, length=h - model.stretch(tension),
+                               converged=True, residual=0.0)
 
     def stop(self) -> None:
         with self._cond:
@@ -112,6 +127,11 @@ class Plant:
             if np.all(np.abs(np.asarray(values) - self._command[1]) <= tol):
                 return
         self._command = (modes, np.array(values, float))
+        self._solver.request(*self._command)
+
+    def hold_home(self, on: bool = True) -> None:
+        """Hold (or let go of) the arm at its home pose, as a person zeroing it would."""
+        self._solver.home = on
         self._solver.request(*self._command)
 
     def settled(self, tol: float = 1e-4) -> bool:

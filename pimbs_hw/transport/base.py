@@ -71,6 +71,7 @@ class QueuedTransport(Transport):
         self._corrupt_per_s = corrupt_per_s
         self._bad_times: collections.deque[float] = collections.deque()
         self._lock = threading.Lock()
+        self._bypass = False
         self.closed = False
 
     # -- receive thread side ---------------------------------------------------------------
@@ -106,12 +107,28 @@ class QueuedTransport(Transport):
 
     def check(self) -> None:
         """Raise the pending link fault, if any."""
+        if self._bypass:
+            return
         if self._fault is None and not self.closed:
             problem = self._alive()
             if problem is not None:
                 self._fail(problem)
         if self._fault is not None:
             raise self._fault
+
+    def usable(self) -> bool:
+        """Whether frames can still go out: after a bad-frame storm they can (the stop is
+        about trusting what comes in); after bus-off or a lost link they cannot."""
+        return not self.closed and (self._fault is None
+                                    or isinstance(self._fault, CorruptFrames))
+
+    def send_despite_fault(self, arbitration_id: int, data: bytes) -> None:
+        """Send although a stop is pending (the driver's last relax after a stop)."""
+        self._bypass = True
+        try:
+            self.send(arbitration_id, data)
+        finally:
+            self._bypass = False
 
     def recv(self, timeout: float | None = 0.0) -> Frame | None:
         self.check()

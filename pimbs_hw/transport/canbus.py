@@ -12,7 +12,10 @@ rest (bitrate, app name, ...) from ``~/.canrc``, ``can.ini`` or the environment.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -22,7 +25,38 @@ from pimbs_hw.safety import BusOff, LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 
 VIRTUAL_DEFAULT_CHANNEL = "pimbs"
+# a send that cannot go out this long is a lost link (a full adapter buffer for a moment is
+# not: USB adapters and a busy host stall briefly); a board watchdog acts meanwhile
+SEND_TIMEOUT_S = 0.5
 _HINT = "use --port virtual for the simulated arm"
+# python-can's interface modules log their missing vendor libraries as warnings on import
+# ("Kvaser canlib is unavailable."); with no handler configured Python prints them bare on
+# stderr. They belong in a log, and the one that explains a failed open goes into its message.
+logging.getLogger("can").addHandler(logging.NullHandler())
+
+
+class _Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(" ".join(record.getMessage().split()))
+
+
+@contextlib.contextmanager
+def _python_can_warnings() -> Iterator[list[str]]:
+    """Warnings python-can logs while an interface is imported and opened."""
+    handler, logger = _Collect(), logging.getLogger("can")
+    logger.addHandler(handler)
+    try:
+        yield handler.lines
+    finally:
+        logger.removeHandler(handler)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
 
 
 def parse_can_port(port: str) -> dict[str, Any]:
@@ -47,13 +81,23 @@ def parse_can_port(port: str) -> dict[str, Any]:
     return kwargs
 
 
-def _open_hint(port: str, kwargs: dict[str, Any], exc: Exception) -> str:
+def _said(exc: BaseException, logged: list[str]) -> str:
+    """What python-can said: its logged warnings first (they name the missing library)."""
+    return _one_line("; ".join(dict.fromkeys([*logged, f"{type(exc).__name__}: {exc}"])))
+
+
+def _open_hint(port: str, kwargs: dict[str, Any], said: str, hint: str = _HINT) -> str:
+    """One line: the port, what python-can said, what to do."""
     if kwargs.get("interface") == "socketcan":
         ch = kwargs.get("channel", port)
-        return (f"no CAN interface {ch!r} ({exc}): is the adapter plugged in and "
-                f"`sudo ip link set {ch} up type can bitrate 1000000` done? {_HINT}")
-    return (f"cannot open CAN port {port!r} (python-can {kwargs or 'config'}: {exc}): is the "
-            f"adapter plugged in and its driver installed, and is the channel right? {_HINT}")
+        named = "" if ch == port else f" (port {port!r})"
+        text = (f"no CAN interface {ch!r}{named} ({said}): is the adapter plugged in and "
+                f"`sudo ip link set {ch} up type can bitrate 1000000` done? {hint}")
+    else:
+        text = (f"cannot open CAN port {port!r} (python-can {kwargs or 'config'}: {said}): is "
+                f"the adapter plugged in and its vendor driver/library installed, and is the "
+                f"channel right? {hint}")
+    return _one_line(text)
 
 
 class _Listener(can.Listener):
@@ -71,13 +115,19 @@ class _Listener(can.Listener):
 class CanTransport(QueuedTransport):
     """Frames over python-can, received by a ``can.Notifier`` thread."""
 
-    def __init__(self, port: str, *, corrupt_per_s: int = 3, **bus_kwargs: Any) -> None:
+    def __init__(self, port: str, *, corrupt_per_s: int = 3, hint: str = _HINT,
+                 **bus_kwargs: Any) -> None:
         super().__init__(port or "default", corrupt_per_s)
         kwargs = {**parse_can_port(port), **bus_kwargs}
-        try:
-            self.bus = can.Bus(**kwargs)
-        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
-            raise PortError(self.port, _open_hint(self.port, kwargs, exc)) from exc
+        with _python_can_warnings() as logged:
+            try:
+                self.bus = can.Bus(**kwargs)
+            except Exception as exc:  # noqa: BLE001 - a vendor interface fails in any way
+                # (NameError from kvaser without canlib, TypeError from socketcand without a
+                # host): it is the adapter's problem, not ours, and gets one line
+                said = _said(exc, logged)
+                raise PortError(self.port, _open_hint(self.port, kwargs, said, hint),
+                                problem=said) from exc
         self._notifier = can.Notifier(self.bus, [_Listener(self)], timeout=0.05)
 
     def _alive(self) -> SafetyStop | None:
@@ -96,7 +146,7 @@ class CanTransport(QueuedTransport):
     def _send(self, msg: can.Message) -> None:
         self.check()
         try:
-            self.bus.send(msg, timeout=0.05)
+            self.bus.send(msg, timeout=SEND_TIMEOUT_S)
         except can.CanError as exc:
             self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
             raise self._fault from exc  # type: ignore[misc]

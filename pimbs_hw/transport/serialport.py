@@ -23,6 +23,7 @@ from pimbs_hw.safety import LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 
 READ_TIMEOUT_S = 0.05
+WRITE_TIMEOUT_S = 0.5  # a USB-serial buffer full this long is a lost link, a moment is not
 
 
 class ByteStream(Protocol):
@@ -75,7 +76,7 @@ class PtyMaster:
 def _open_serial(port: str, baudrate: int) -> serial.SerialBase:
     try:
         stream = serial.serial_for_url(port, baudrate=baudrate, timeout=READ_TIMEOUT_S,
-                                       write_timeout=0.1)
+                                       write_timeout=WRITE_TIMEOUT_S)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PortError(port, f"cannot open serial port {port!r} ({exc}): is the board plugged "
                               "in (`ls /dev/ttyUSB* /dev/ttyACM*`) and are you in the dialout "

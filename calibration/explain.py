@@ -1,0 +1,83 @@
+"""What a robot description means, in words: joints, muscles, moment arms, the both-ways check.
+
+The muscle file is a list of via points; what a user needs to see is what it implies (which
+muscle turns which joint which way, how strongly, over the whole range, and where a joint
+cannot be driven both ways), before any collection discovers a routing mistake the hard way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.routing import MIN_MOMENT_ARM, RoutingReport
+from pimbs_calibration.urdf_model import UNLIMITED, link_masses, parse_joints
+
+
+def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:
+    """Lines of text explaining the description and the routing check."""
+    robot = arm.robot
+    text = robot.urdf_path.read_text()
+    urdf = parse_joints(robot.urdf_path, text)
+    moving = float(sum(inertia.mass for inertia in arm._model.inertias[1:]))
+    lines = [f"robot {robot.name}: {robot.muscle_path}",
+             f"  URDF {robot.urdf_path}",
+             f"  total mass {sum(link_masses(text).values()):.4g} kg ({moving:.4g} kg moved by "
+             f"the driven joints); joint angles from "
+             f"{'joint encoders' if robot.joint_encoders else 'the model'}", "",
+             f"driven joints ({arm.n_joints}, in column order):"]
+    for name, rng, lim in zip(arm.joints, arm.joint_range, arm.joint_limits, strict=True):
+        limits = ("none (continuous)" if lim[1] >= UNLIMITED
+                  else f"[{lim[0]:.3g}, {lim[1]:.3g}]")
+        lines.append(f"  {name:<22} {urdf[name].type:<10} sampled in [{rng[0]:.3g}, "
+                     f"{rng[1]:.3g}] rad, URDF limits {limits}")
+    followers = {f[0]: f[1:] for f in robot.followers}
+    locked = dict(robot.locked)
+    if locked or followers:
+        lines += ["", f"locked joints ({len(locked)}; not driven by muscles, held rigid):"]
+        for name, value in locked.items():
+            how = f" (mimic of {urdf[name].mimic[0]})" if urdf[name].mimic else ""
+            lines.append(f"  {name:<22} {urdf[name].type:<10} at {value:.4g}{how}")
+        for name, (leader, m, c) in followers.items():
+            lines.append(f"  {name:<22} follows driven {leader}: q = {m:g}*{leader} + {c:g}")
+    lines += ["", f"muscles ({arm.n_muscles}):",
+              f"  {'name':<14} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  via points"]
+    for m in robot.muscles:
+        links = " > ".join(dict.fromkeys(v.link for v in m.path))
+        lines.append(f"  {m.name:<14} {m.board_id:>5} {m.f_floor:>8.4g} {m.f_max:>7.4g} "
+                     f"{m.K:>7.4g}  {len(m.path)} on {links}")
+    lines += ["", f"moment arms r = -dl/dtheta in mm over {len(report.poses)} poses "
+              "(centre, corners, random); r > 0 turns the joint towards positive angles:"]
+    width = max(14, *(len(j) for j in arm.joints))
+    lines.append("  " + f"{'':<14}" + "".join(f"{j:>{width + 2}}" for j in arm.joints))
+    r = report.moment_arm * 1e3
+    crosses = report.crosses()
+    for i, m in enumerate(arm.muscles):
+        cells = [f"{r[:, i, j].min():+.1f}..{r[:, i, j].max():+.1f}" if crosses[i, j] else "-"
+                 for j in range(arm.n_joints)]
+        lines.append("  " + f"{m:<14}" + "".join(f"{c:>{width + 2}}" for c in cells))
+    lines += ["", *both_ways_lines(arm, report, max_poses)]
+    return lines
+
+
+def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:
+    """The check that every driven joint can be turned both ways at every checked pose."""
+    bad = report.one_sided()
+    n = len(report.poses)
+    lines = [f"both-ways check (some muscle with r >= +{MIN_MOMENT_ARM * 1e3:g} mm and some "
+             f"with r <= -{MIN_MOMENT_ARM * 1e3:g} mm, per joint and pose):"]
+    for j, name in enumerate(arm.joints):
+        where = np.flatnonzero(bad[:, j])
+        if not len(where):
+            lines.append(f"  {name:<22} ok at all {n} poses")
+            continue
+        lines.append(f"  {name:<22} FAILS at {len(where)} of {n} poses, e.g.:")
+        for p in where[:max_poses]:
+            pose = ", ".join(f"{a:.3f}" for a in report.poses[p])
+            lines.append(f"    theta=[{pose}]: nothing turns it towards "
+                         f"{report.missing_side(p, j)} angles")
+    return lines
+
+
+def routing_ok(report: RoutingReport) -> bool:
+    return not report.one_sided().any()

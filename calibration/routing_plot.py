@@ -1,0 +1,77 @@
+"""A picture of the routing: the arm's links and every muscle's wire path, in metres.
+
+The skeleton is drawn from the URDF tree (a line from each parent link's frame to its child's,
+locked joints included, driven joints marked), the wires through their via points, one colour
+and one label per muscle. One panel per pose: the home pose and, if asked, another.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.urdf_model import link_centres, parse_joints
+
+
+def plot_routing(arm: ArmModel, out: Path, poses: Sequence[tuple[str, np.ndarray]]) -> None:
+    """Write a PNG with one 3-D panel per ``(title, theta)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    text = arm.robot.urdf_path.read_text()
+    urdf = parse_joints(arm.robot.urdf_path, text)
+    centres = link_centres(text)
+    parents = {j.parent for j in urdf.values()}
+    fig = plt.figure(figsize=(7.5 * len(poses), 7.5), layout="constrained")
+    colours = plt.get_cmap("tab10" if arm.n_muscles <= 10 else "tab20")
+    for k, (title, theta) in enumerate(poses):
+        ax = fig.add_subplot(1, len(poses), k + 1, projection="3d")
+        frames = arm.link_frames(theta)
+        origins = {name: p for name, (_, p) in frames.items()}
+        points = arm.via_points(theta)
+        bones = [(origins[j.parent], origins[j.child]) for j in urdf.values()
+                 if j.parent in origins and j.child in origins]
+        # a link with no child ends at twice its centre of mass (a forearm, a hand)
+        bones += [(p, p + 2 * rot @ centres[name]) for name, (rot, p) in frames.items()
+                  if name not in parents and name in centres]
+        everything = np.vstack([*origins.values(), *points, *(b for _, b in bones)])
+        for a, b in bones:
+            ax.plot(*np.stack([a, b]).T, color="0.35", lw=3, solid_capstyle="round",
+                    zorder=1)
+        at: dict[tuple, list[str]] = {}  # joints at one place (a 2-axis shoulder) share a label
+        for name in arm.joints:
+            at.setdefault(tuple(np.round(origins[urdf[name].child], 4)), []).append(name)
+        for p, names in at.items():
+            ax.scatter(*p, s=60, color="black", depthshade=False, zorder=3)
+            ax.text(*p, "  " + " + ".join(names), fontsize=8, color="0.2")
+        for i, (muscle, p) in enumerate(zip(arm.robot.muscles, points, strict=True)):
+            colour = colours(i % colours.N)
+            ax.plot(*p.T, "-o", color=colour, lw=1.8, ms=3,
+                    label=f"{muscle.name} (board {muscle.board_id})", zorder=2)
+            ax.text(*p[-1], f" {muscle.name}", color=colour, fontsize=9, fontweight="bold")
+        _equal_axes(ax, everything)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_zlabel("z [m]")
+        pose = ", ".join(f"{j}={t:.2f}" for j, t in zip(arm.joints, theta, strict=True))
+        ax.set_title(f"{arm.robot.name}: {title}\n{pose} rad", fontsize=10)
+        ax.view_init(elev=15, azim=-60)
+        if k == 0:
+            ax.legend(loc="upper left", fontsize=8, title="muscles", title_fontsize=9)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def _equal_axes(ax, points: np.ndarray) -> None:
+    """Same scale on x, y and z, so lengths and moment arms look as they are."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 0.05) * 1.05
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))

@@ -1,0 +1,83 @@
+"""`pimbs robot`: what a robot description means, and a picture of its routing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from pimbs_cli.common import check_output, force_option, user_errors
+
+
+def _parse_pose(text: str, joints: tuple[str, ...]) -> list[float]:
+    """``0.1,-0.3,0.2`` (every driven joint in order) or ``elbow=-0.5,shoulder=0.2``
+    (the others at 0)."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if all("=" in p for p in parts):
+        pose = dict.fromkeys(joints, 0.0)
+        for part in parts:
+            name, _, value = part.partition("=")
+            if name.strip() not in pose:
+                raise click.BadParameter(f"'{name.strip()}' is not a driven joint "
+                                         f"({', '.join(joints)})", param_hint="--pose")
+            pose[name.strip()] = _float(value)
+        return list(pose.values())
+    if len(parts) != len(joints):
+        raise click.BadParameter(f"give {len(joints)} angles in rad ({', '.join(joints)}) or "
+                                 "name=value pairs", param_hint="--pose")
+    return [_float(p) for p in parts]
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise click.BadParameter(f"'{text}' is not a number (rad)", param_hint="--pose") from None
+
+
+@click.command("robot")
+@click.argument("robot")
+@click.option("--plot", "plot", type=click.Path(dir_okay=False, path_type=Path),
+              help="draw the arm at the home pose (and --pose) with every muscle's path (PNG)")
+@click.option("--pose", help="another pose to draw: angles of the driven joints in order "
+                             "(0.1,-0.3,0.2) or name=value pairs (rad)")
+@click.option("--poses", "n_poses", type=click.IntRange(min=0), default=200, show_default=True,
+              help="random poses (besides centre and corners) for the moment-arm ranges and "
+                   "the both-ways check")
+@click.option("--package-path", "package_path", multiple=True,
+              type=click.Path(file_okay=False, path_type=Path),
+              help="where a 'urdf: package://...' is looked for (repeatable; also the muscle "
+                   "file's package_path and ROS_PACKAGE_PATH)")
+@force_option()
+@user_errors
+def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
+            package_path: tuple[Path, ...], force: bool) -> None:
+    """Explain ROBOT (a built-in name or a .muscles.yaml): joints driven and locked, muscles
+    and boards, moment arms over the joint ranges, and whether every driven joint can be
+    turned both ways at every checked pose (exit status 1 where it cannot)."""
+    import numpy as np
+
+    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_calibration.description import load_robot
+    from pimbs_calibration.explain import describe, routing_ok
+    from pimbs_calibration.routing import check_poses, routing_report
+
+    if plot is not None:
+        check_output(plot, force=force, what="picture", option="--plot")
+    arm = ArmModel(load_robot(robot, package_path))
+    other = None if pose is None else np.array(_parse_pose(pose, arm.joints))
+    report = routing_report(arm, check_poses(arm, n_poses))
+    for line in describe(arm, report):
+        click.echo(line)
+    if plot is not None:
+        from pimbs_calibration.routing_plot import plot_routing
+
+        home = np.clip(np.zeros(arm.n_joints), arm.joint_limits[:, 0], arm.joint_limits[:, 1])
+        panels = [("home pose", home)] + ([] if other is None else [("given pose", other)])
+        plot_routing(arm, plot, panels)
+        click.echo(f"\nwrote {plot}")
+    if not routing_ok(report):
+        raise click.ClickException(
+            f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways at the "
+            "poses listed above; route a muscle on the missing side or narrow that joint's "
+            "range")

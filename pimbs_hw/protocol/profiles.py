@@ -1,0 +1,51 @@
+"""Which ``BoardProtocol`` drives each muscle: the robot description names a profile.
+
+A muscle's ``protocol`` (in the ``.muscles.yaml``, per muscle or under ``defaults``) is
+``pimbs-v1`` (the default), a shipped profile name (``odrive-cansimple``), or a path to a
+lab's own profile file (``*.profile.yaml``: its ``.dbc`` plus the mapping, see
+``profile.py``). Muscles with the same profile share one protocol object.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from pimbs_hw.protocol.board import BoardProtocol
+from pimbs_hw.protocol.pimbs_v1 import NAME as V1
+from pimbs_hw.protocol.pimbs_v1 import PimbsV1
+
+PROFILE_DIR = resources.files("pimbs_hw.protocol") / "profiles"
+SHIPPED = ("odrive-cansimple",)
+
+
+def profile_path(name: str) -> Path:
+    """The profile file a ``protocol`` value names (a shipped name or a path)."""
+    if name in SHIPPED:
+        return Path(str(PROFILE_DIR / f"{name}.profile.yaml"))
+    return Path(name)
+
+
+def muscle_protocol(spec) -> str:
+    return getattr(spec, "protocol", None) or V1
+
+
+def protocols_for(robot) -> list[BoardProtocol]:
+    """One protocol object per distinct profile of ``robot``'s muscles."""
+    from pimbs_hw.protocol.profile import load_profile
+
+    groups: dict[str, list[int]] = {}
+    for i, spec in enumerate(robot.muscles):
+        groups.setdefault(muscle_protocol(spec), []).append(i)
+    protocols: list[BoardProtocol] = []
+    n_joints = len(robot.joints) if robot.joint_encoders else 0
+    for name, indices in groups.items():
+        specs = [robot.muscles[i] for i in indices]
+        if name == V1:
+            protocols.append(PimbsV1(indices, specs, n_joints))
+            n_joints = 0
+        else:
+            protocols.append(load_profile(profile_path(name)).protocol(indices, specs))
+    if n_joints:  # joint encoders speak v1 JOINT frames whatever the muscle boards speak
+        protocols.append(PimbsV1([], [], n_joints))
+    return protocols
