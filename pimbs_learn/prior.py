@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 PREFIX = "prior."
-KEYS = ("rot0", "pos0", "axis", "parent", "qcol", "via_joint", "via_local", "seg_a", "seg_b",
-        "seg_muscle", "h0", "supports", "K")
+KEYS = ("rot0", "pos0", "axis", "parent", "theta_map", "q_offset", "via_joint", "via_local",
+        "seg_a", "seg_b", "seg_muscle", "h0", "supports", "K")
 _REVOLUTE_AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
                   "JointModelRZ": (0.0, 0.0, 1.0)}
 
@@ -31,11 +31,12 @@ class PriorUnavailable(ValueError):
 def prior_arrays(arm) -> dict[str, np.ndarray]:  # arm: pimbs_calibration.ArmModel
     """Constants of the geometric model, from pinocchio (joint 0 is the fixed world)."""
     model = arm._model
-    jids = [model.getJointId(j) for j in arm.joints]
     nj = model.njoints
     rot0, pos0, axis = np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3))
     rot0[0] = np.eye(3)
-    qcol = np.full(nj, -1, dtype=np.int64)
+    # every joint of the (reduced) model: q_j = theta_map[j]·θ + q_offset[j] (driven joints,
+    # and mimic joints that follow them; locked joints are already folded in by pinocchio)
+    theta_map, q_offset = np.zeros((nj, arm.n_joints)), np.zeros(nj)
     for j in range(1, nj):
         jm = model.joints[j]
         kind = jm.shortname()
@@ -48,15 +49,16 @@ def prior_arrays(arm) -> dict[str, np.ndarray]:  # arm: pimbs_calibration.ArmMod
                                    "prior supports revolute joints only")
         rot0[j] = model.jointPlacements[j].rotation
         pos0[j] = model.jointPlacements[j].translation
-        if j in jids:
-            qcol[j] = jids.index(j)
+        col = list(arm._iq_cols).index(jm.idx_q)
+        theta_map[j] = arm._S[col]
+        q_offset[j] = arm._offset[col]
     supports = np.zeros((nj, nj))  # supports[k, j]: joint k moves frame j
     for j in range(nj):
         for k in model.supports[j]:
             supports[k, j] = 1.0
     vj = np.array(arm._joint_ids)[arm._via_joint]
     return {"rot0": rot0, "pos0": pos0, "axis": axis, "parent": np.array(
-        list(model.parents), dtype=np.int64), "qcol": qcol,
+        list(model.parents), dtype=np.int64), "theta_map": theta_map, "q_offset": q_offset,
         "via_joint": vj.astype(np.int64), "via_local": arm._via_local.copy(),
         "seg_a": arm._seg_a.astype(np.int64), "seg_b": arm._seg_b.astype(np.int64),
         "seg_muscle": arm._seg_muscle.copy(), "h0": arm._h0.copy(),
@@ -89,13 +91,6 @@ class GeometricPrior(torch.nn.Module):
             self.register_buffer(k, v.clone())
         # the chain's structure is fixed: plain ints, so the loop below unrolls in a trace
         self._parent = [int(p) for p in self.parent.tolist()]
-        self._qcol = [int(q) for q in self.qcol.tolist()]
-        n = max(self._qcol) + 1
-        onehot = torch.zeros(len(self._qcol), n, dtype=self.rot0.dtype)
-        for j, q in enumerate(self._qcol):
-            if q >= 0:
-                onehot[j, q] = 1.0
-        self.register_buffer("joint_to_theta", onehot)  # (J, N)
 
     @classmethod
     def from_numpy(cls, arrays: dict[str, np.ndarray], dtype: torch.dtype = torch.float64
@@ -106,8 +101,9 @@ class GeometricPrior(torch.nn.Module):
     def forward(self, theta: torch.Tensor, tension: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         zero = theta[:, :1] * 0  # (B, 1): batch-sized zeros by broadcasting, no shape ops
+        q_all = theta @ self.theta_map.transpose(-1, -2) + self.q_offset  # (B, J)
         rots, poss, omegas = [], [], []
-        for j, (parent, col) in enumerate(zip(self._parent, self._qcol, strict=True)):
+        for j, parent in enumerate(self._parent):
             if j == 0:  # the world frame
                 rots.append(zero.unsqueeze(-1) + self.rot0[0])
                 poss.append(zero + self.pos0[0])
@@ -117,8 +113,7 @@ class GeometricPrior(torch.nn.Module):
             r_fixed = r_p @ self.rot0[j]
             poss.append((r_p @ self.pos0[j].unsqueeze(-1)).squeeze(-1) + p_p)
             omegas.append((r_fixed @ self.axis[j].unsqueeze(-1)).squeeze(-1))
-            q = theta[:, col] if col >= 0 else zero[:, 0]
-            rots.append(r_fixed @ _rodrigues(self.axis[j], q))
+            rots.append(r_fixed @ _rodrigues(self.axis[j], q_all[:, j]))
         rot = torch.stack(rots, dim=1)  # (B, J, 3, 3)
         pos = torch.stack(poss, dim=1)  # (B, J, 3)
         omega = torch.stack(omegas, dim=1)  # (B, J, 3)
@@ -133,7 +128,7 @@ class GeometricPrior(torch.nn.Module):
         dp = _cross(omega.unsqueeze(1), rel)
         moved = self.supports.transpose(-1, -2)[self.via_joint]  # (V, J)
         dp = dp * moved.unsqueeze(0).unsqueeze(-1)  # (B, V, J, 3)
-        dp_theta = (dp.transpose(-1, -2) @ self.joint_to_theta)  # (B, V, 3, N)
+        dp_theta = (dp.transpose(-1, -2) @ self.theta_map)  # (B, V, 3, N)
         u = d / seg_len.unsqueeze(-1)
         dlen = (u.unsqueeze(-1) * (dp_theta[:, self.seg_b] - dp_theta[:, self.seg_a])).sum(-2)
         return h, self.seg_muscle @ dlen  # (B, M), (B, M, N)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -148,7 +149,11 @@ def test_reference_trainer_refuses_what_it_does_not_implement() -> None:
         Run(replace(s), s, LossConfig.parse("basic"), 0, False, SERIES_ELASTIC).check()
 
 
-@pytest.mark.parametrize("robot", ["two-link-4-muscle", "left-arm-5dof"])
+ACME = str(Path(__file__).resolve().parents[1] / "fixtures" / "foreign_arm"
+           / "acme_left_arm.muscles.yaml")  # locked, continuous and mimic joints
+
+
+@pytest.mark.parametrize("robot", ["two-link-4-muscle", "left-arm-5dof", ACME])
 def test_geometric_prior_matches_the_arm_model(robot: str) -> None:
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_learn.prior import GeometricPrior, prior_arrays
