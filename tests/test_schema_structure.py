@@ -223,3 +223,21 @@ def test_cli_without_a_known_robot_trains_without_prior(tmp_path) -> None:
     assert out.exit_code == 0, out.output
     assert "no geometric prior" in out.output
     assert json.loads((tmp_path / "m.json").read_text())["prior"] is None
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit.trace:DeprecationWarning")
+def test_graph_traces_once_for_any_batch_size() -> None:
+    """What ONNX export needs: one trace, valid for another batch size (prior included)."""
+    from pimbs_learn.prior import load_prior
+
+    s = replace(synthetic_samples(12), joints=("shoulder_pitch", "elbow_pitch"))
+    prior = load_prior("two-link-4-muscle", s.joints, s.muscles)
+    res = train(Run(s, s, AUTO, 0, True, SERIES_ELASTIC, prior, "two-link-4-muscle"),
+                TrainOptions(epochs=5, **SMALL))
+    graph = schema_from_result(res).graph
+    assert graph.prior is not None
+    traced = torch.jit.trace(graph, (torch.zeros(3, 2, dtype=F64), torch.ones(3, 4,
+                                                                             dtype=F64)))
+    th, f = torch.tensor(s.theta[:7]), torch.tensor(s.tension[:7])
+    for got, want in zip(traced(th, f), graph(th, f), strict=True):
+        torch.testing.assert_close(got, want)
