@@ -8,13 +8,15 @@ at the place it acts on a real robot:
   arm differs from the model in mass, stiffness or tendon path;
 * on the **pose** (``joint_offset``): the joint encoder's zero is off, so the controller
   puts the arm at ``θ_cmd − δ`` while the encoder reports ``θ_cmd``;
-* on the **tension reading** (``tendon_friction``, ``tension_offset``, ``thermal_drift``):
-  the loadcell sits at the motor, so it reads the joint-side tension through capstan
-  friction ``f·exp(−a·μ)`` (``a`` the approach direction, +1 lengthening), with a bias, or
-  with a drift proportional to ``T − T_ref``.
+* on the **tension reading** (``tendon_friction``, ``tension_gain``, ``tension_offset``,
+  ``thermal_drift``): the loadcell sits at the motor, so it reads the joint-side tension
+  through capstan friction ``f·exp(−a·μ)`` (``a`` the approach direction, +1 lengthening),
+  with a calibration gain error ``(1 + g)·f``, a bias, or a drift proportional to
+  ``T − T_ref`` (zero at the temperature where the loadcell was zeroed).
 
 Specs are text, ``NAME[:PARAMS]``: ``tendon_friction:0.2``,
-``tension_offset:15,muscles=m1``, ``link_mass:1.4,link=forearm`` (mass scale),
+``tension_offset:15,muscles=m1``, ``tension_gain:0.15,muscles=m2`` (reads 15 % high),
+``link_mass:1.4,link=forearm`` (mass scale),
 ``joint_offset:0.05,joints=elbow_pitch``, ``thermal_drift:0.8`` (N/°C),
 ``elastic_stiffness:0.6`` (K scale), ``routing:0.003`` (m, random via-point shifts; the
 nuisance a body schema learns, not a diagnosis target).
@@ -32,12 +34,14 @@ import pinocchio as pin
 from pimbs_calibration.arm_model import ArmModel
 
 # Vocabulary shared with the diagnosis report; aliases accepted on the command line.
-EFFECT_NAMES = ("tendon_friction", "link_mass", "tension_offset", "thermal_drift",
-                "elastic_stiffness", "joint_offset", "routing")
+EFFECT_NAMES = ("tendon_friction", "link_mass", "tension_offset", "tension_gain",
+                "thermal_drift", "elastic_stiffness", "joint_offset", "routing")
 ALIASES = {"friction": "tendon_friction", "mass": "link_mass", "offset": "tension_offset",
            "loadcell_offset": "tension_offset", "drift": "thermal_drift",
+           "gain": "tension_gain", "loadcell_gain": "tension_gain",
            "stiffness": "elastic_stiffness", "encoder_offset": "joint_offset"}
 DEFAULT_MAGNITUDE = {"tendon_friction": 0.15, "link_mass": 1.3, "tension_offset": 15.0,
+                     "tension_gain": 0.15,
                      "thermal_drift": 0.8, "elastic_stiffness": 0.6, "joint_offset": 0.04,
                      "routing": 0.002}
 T_REF = 25.0  # °C at which loadcells are calibrated
@@ -46,6 +50,7 @@ MAGNITUDE_RANGE = {
     "tendon_friction": ("friction coefficient mu", 0.0, 1.0, False),
     "link_mass": ("mass scale", 0.0, 10.0, True),
     "tension_offset": ("loadcell offset [N]", -500.0, 500.0, False),
+    "tension_gain": ("loadcell gain error (reads (1+g)·f)", -0.9, 10.0, False),
     "thermal_drift": ("drift [N/°C]", -50.0, 50.0, False),
     "elastic_stiffness": ("stiffness scale K_true/K_model", 0.0, 10.0, True),
     "joint_offset": ("joint zero offset [rad]", -0.5, 0.5, False),
@@ -99,6 +104,8 @@ class Effect:
         out = np.array(tension, dtype=float, copy=True)
         if self.name == "tendon_friction":
             out[..., mask] *= np.exp(-np.asarray(approach, float)[..., mask] * self.magnitude)
+        elif self.name == "tension_gain":
+            out[..., mask] *= 1.0 + self.magnitude
         elif self.name == "tension_offset":
             out[..., mask] += self.magnitude
         elif self.name == "thermal_drift":
@@ -198,7 +205,7 @@ def parse_effect(spec: str, seed: int = 0) -> Effect:
                 effect.joints = tuple(value.split("+"))
             elif key == "link":
                 effect.link = value
-            elif key in ("magnitude", "value", "mu", "scale", "offset", "coef"):
+            elif key in ("magnitude", "value", "mu", "scale", "offset", "coef", "gain"):
                 effect.magnitude = float(value)
             else:
                 raise EffectSpecError(f"unknown parameter '{key}' in '{spec}'")

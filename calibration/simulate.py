@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
-from pimbs_calibration.effects import Effect, World
+from pimbs_calibration.effects import T_REF, Effect, World
 from pimbs_calibration.poses import ATL_F_MIN, hold_ceiling, plan_poses
 from pimbs_calibration.recording import make_meta
 
@@ -68,18 +68,20 @@ def approach_direction(previous: np.ndarray, current: np.ndarray,
 
 def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0,
              effects: tuple[Effect, ...] = (), noise: float = 1.0,
-             sample_period: float = 4.0,
+             sample_period: float = 4.0, noise_seed: int | None = None,
              start: np.datetime64 = START,
              progress: Callable[[int], None] | None = None,
              ) -> tuple[dict[str, np.ndarray], dict]:
     """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording.
 
+    ``noise_seed`` draws other sensor noise for the same poses (default: from ``seed``), so a
+    "real" and a reference recording of the same poses need not share their noise.
     ``progress(done)`` is called every 100 samples and at the end (a 5-DOF arm takes
     about 0.4 ms per sample: 100 000 samples run for most of a minute).
     """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
-    noise_rng = np.random.default_rng([seed, 2])
+    noise_rng = np.random.default_rng([seed if noise_seed is None else noise_seed, 2])
     world = World(arm, tuple(effects))
     sigma = SensorNoise().scaled(noise)
     thermal = ThermalModel()
@@ -121,7 +123,9 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
                      f_min=[0.0, 0.0] if map_kind == "al" else list(ATL_F_MIN),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
                      noise=noise, theta_source="simulation",
-                     replaced_poses=list(plan.replaced))
+                     replaced_poses=list(plan.replaced),
+                     # the simulated loadcells were zeroed (read right) at T_REF
+                     loadcell_zero_temperature_C=T_REF)
     return data, meta
 
 

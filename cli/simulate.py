@@ -18,11 +18,11 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True)
 @click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
               help="write a 'real' recording with this effect present but unlabelled: "
-                   "tendon_friction, link_mass, tension_offset, thermal_drift, "
+                   "tendon_friction, link_mass, tension_offset, tension_gain, thermal_drift, "
                    "elastic_stiffness, joint_offset, routing (repeatable), e.g. "
                    "tendon_friction:0.2 or tension_offset:15,muscles=m1; aliases: "
-                   "friction, mass, offset, loadcell_offset, drift, stiffness, "
-                   "encoder_offset")
+                   "friction, mass, offset, loadcell_offset, gain, loadcell_gain, drift, "
+                   "stiffness, encoder_offset")
 @click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="sensor noise scale (0: exact data)")
 @force_option()

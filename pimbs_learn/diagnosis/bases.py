@@ -165,3 +165,16 @@ class GravityFunction:
         else:
             mask = np.any(self.basis.exponents[:, first_joint:] > 0, axis=1)
         return np.where(mask, self.coef, 0.0), np.where(mask, 0.0, self.coef)
+
+    def level(self, joint: int) -> np.ndarray:
+        """Coefficients of the potential's terms whose last (most distal) joint is ``joint``.
+
+        A mass change beyond joint k changes each proximal level by its own fraction (the
+        changed link's lever on that level against the other links' on it), so each level
+        gets its own scale.
+        """
+        codes = self.basis.codes if isinstance(self.basis, TrigBasis) else self.basis.exponents
+        moving = codes > 0
+        last = np.where(moving.any(axis=1), moving.shape[1] - 1 - np.argmax(moving[:, ::-1],
+                                                                           axis=1), -1)
+        return np.where(last == joint, self.coef, 0.0)

@@ -16,16 +16,27 @@ An effect changes what the sensors report (``f``, ``θ``) or what the model assu
 effect         unit parameter                          acts as
 ============== ======================================= =====================================
 tension_offset b_j [N]                                 f_true = f − b_j
-thermal_drift  c_j [N/°C] and b_j [N]                  f_true = f − b_j − c_j (T_j − T̄_j)
+tension_gain   g_j [–]                                 f_true = f / (1 + g_j)
+thermal_drift  c_j [N/°C]                              f_true = f − c_j (T_j − T0_j)
 tendon_friction μ_j [–]                                f_true = f · exp(a_j μ_j) (capstan)
 elastic_stiffness s_j [–]                              κ_j → κ_j (1 + s_j)   (K_true = K/(1+s))
 joint_offset   δ_k [rad]                               θ_true = θ − δ
-link_mass      β_k, γ_k [–] for the links beyond joint k g += β ∇V_distal,k + γ ∇V_rest,k
+link_mass      β_k, γ_ki [–] for the links beyond joint k g += β ∇V_distal,k + Σ γ_ki ∇V_i
 ============== ======================================= =====================================
 
 ``V_distal,k`` is the part of the model's gravity potential that moves with joints ≥ k:
 a mass change of the links beyond joint k scales it exactly (``β = scale − 1``); its share
-of the proximal-only part is not identifiable from τ samples and gets its own ``γ``.
+of each proximal level ``V_i`` (terms whose last joint is i < k) is not identifiable from τ
+samples and gets its own ``γ_ki``.
+
+A thermal drift is anchored where the loadcell was zeroed (per muscle, or one coefficient
+common to all loadcells of one type and amplifier: pooled, it is seen where per-muscle
+coefficients are too weak — four loadcell errors against two torque equations on a 2-DOF
+arm): it reads right at ``T0_j``, the
+temperature at zeroing (a metadata field, or the first samples of the session), so drift
+and a constant offset are separate effects that can be present together. A gain error
+grows with the tension, an offset does not, and a stiffness error leaves the torque
+balance alone: the three are told apart by how the error scales with tension.
 """
 
 from __future__ import annotations
@@ -37,7 +48,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 
-EFFECTS = ("tendon_friction", "link_mass", "tension_offset", "thermal_drift",
+EFFECTS = ("tendon_friction", "link_mass", "tension_offset", "tension_gain", "thermal_drift",
            "elastic_stiffness", "joint_offset")
 
 
@@ -56,15 +67,17 @@ class Unit:
 
 def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
     """Groups of units that are selected together (one group per muscle/joint/subtree)."""
-    if effect in ("tension_offset", "tendon_friction", "elastic_stiffness"):
+    if effect == "thermal_drift":  # per muscle, or one coefficient shared by all loadcells
+        return [[Unit(effect, j)] for j in range(n_muscles)] + (
+            [[Unit(effect, -1, "common")]] if n_muscles > 1 else [])
+    if effect in ("tension_offset", "tension_gain", "tendon_friction", "elastic_stiffness"):
         return [[Unit(effect, j)] for j in range(n_muscles)]
-    if effect == "thermal_drift":
-        return [[Unit(effect, j, "slope"), Unit(effect, j, "offset")] for j in range(n_muscles)]
     if effect == "joint_offset":
         return [[Unit(effect, k)] for k in range(n_joints)]
     if effect == "link_mass":
         return [[Unit(effect, 0, "distal")]] + [
-            [Unit(effect, k, "distal"), Unit(effect, k, "rest")] for k in range(1, n_joints)]
+            [Unit(effect, k, "distal")] + [Unit(effect, k, f"level{i}") for i in range(k)]
+            for k in range(1, n_joints)]
     raise ValueError(f"unknown effect {effect!r}")
 
 
@@ -99,7 +112,7 @@ class Physics:
     basis: PolyBasis
     kappa: np.ndarray            # (M,) elastic coefficient of log1p(f) in the length law
     gravity: GravityFunction
-    temp_mean: np.ndarray        # (M,) T̄ used by thermal_drift
+    temp_zero: np.ndarray        # (M,) °C at which each loadcell reads right (T0)
     ridge: float = 1e-9
     # (P, M) schema of the reference, when the real arm's routing matches it: then only a
     # constant per muscle is refitted, and a joint offset shows in the lengths too.
@@ -147,11 +160,15 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
     delta = np.zeros(theta.shape[1])
     gravity_extra = np.zeros(physics.gravity.coef.shape)
     gain = np.zeros(f.shape[1])
+    scale = np.ones(f.shape[1])
     for u, p in zip(units, params, strict=True):
-        if u.effect == "tension_offset" or (u.effect == "thermal_drift" and u.part == "offset"):
+        if u.effect == "tension_offset":
             f[:, u.index] -= p
         elif u.effect == "thermal_drift":
-            f[:, u.index] -= p * (data.temperature[:, u.index] - physics.temp_mean[u.index])
+            j = slice(None) if u.part == "common" else u.index
+            f[:, j] -= p * (data.temperature[:, j] - physics.temp_zero[j])
+        elif u.effect == "tension_gain":
+            scale[u.index] = 1.0 / (1.0 + p)
         elif u.effect == "tendon_friction":
             gain[u.index] = p
         elif u.effect == "elastic_stiffness":
@@ -159,8 +176,13 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
         elif u.effect == "joint_offset":
             delta[u.index] = p
         elif u.effect == "link_mass":
-            distal, rest = physics.gravity.distal_split(u.index)
-            gravity_extra += p * (distal if u.part == "distal" else rest)
+            if u.part == "distal":
+                gravity_extra += p * physics.gravity.distal_split(u.index)[0]
+            else:
+                gravity_extra += p * physics.gravity.level(int(u.part.removeprefix("level")))
+    # the loadcell's chain, undone from the reading back: bias and drift, gain, friction
+    if np.any(scale != 1.0):
+        f *= scale
     if np.any(gain):
         f *= np.exp(data.approach * gain)
     tau = data.tau

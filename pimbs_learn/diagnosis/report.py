@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pimbs_learn.diagnosis.detect import detectable_text
+from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
 from pimbs_learn.diagnosis.select import Candidate
 
@@ -20,9 +22,10 @@ def _param(fit: Fit, unit) -> tuple[float, float | None]:
 
 
 def parameters(cand: Candidate, physics: Physics, joints: list[str],
-               muscles: list[str]) -> tuple[dict, list[str], list[str]]:
-    """Physical parameters of a named effect, and the muscles and joints it involves."""
-    fit, params = cand.fit, {}
+               muscles: list[str], fit: Fit | None = None) -> tuple[dict, list[str], list[str]]:
+    """Physical parameters of a named effect (from ``fit``, the joint fit of all named
+    effects, else the effect's own), and the muscles and joints it involves."""
+    fit, params = fit or cand.fit, {}
     names_m, names_j = [], []
     for unit in cand.units:
         value, se = _param(fit, unit)
@@ -38,12 +41,22 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
             params[muscles[unit.index]] = {
                 "stiffness_ratio": ratio, "se": None if se is None else se * ratio**2,
                 "K_model": float(k_model), "K_estimated": float(k_model * ratio)}
+        elif cand.effect == "tension_gain":
+            params[muscles[unit.index]] = {"gain": value, "se": se,
+                                           "meaning": "loadcell reads (1 + gain)·f"}
+        elif cand.effect == "thermal_drift" and unit.part == "common":
+            params["all muscles (common)"] = {
+                "coefficient_N_per_C": value, "se": se,
+                "reference_temperature_C": [float(t) for t in physics.temp_zero],
+                "meaning": "every loadcell reads f + coefficient·(T − its reference); "
+                           "per-muscle entries add to it"}
+            names_m.extend(muscles)
         elif cand.effect == "thermal_drift":
-            entry = params.setdefault(muscles[unit.index], {})
-            if unit.part == "slope":
-                entry.update({"coefficient_N_per_C": value, "se": se})
-            else:
-                entry["offset_at_mean_temperature_N"] = value
+            params[muscles[unit.index]] = {
+                "coefficient_N_per_C": value, "se": se,
+                "reference_temperature_C": float(physics.temp_zero[unit.index]),
+                "meaning": "loadcell reads f + coefficient·(T − reference), zero where it "
+                           "was zeroed"}
         elif cand.effect == "joint_offset":
             params[joints[unit.index]] = {"offset_rad": value, "se": se,
                                           "meaning": "joint sensor reads true angle + offset"}
@@ -53,28 +66,24 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
             if unit.part == "distal":
                 entry.update({"mass_scale": 1.0 + value, "se": se})
             else:
-                entry["proximal_share"] = value
+                entry.setdefault("proximal_shares", {})[joints[int(
+                    unit.part.removeprefix("level"))]] = value
         if cand.effect == "joint_offset":
             names_j.append(joints[unit.index])
-        elif cand.effect != "link_mass":
+        elif cand.effect != "link_mass" and unit.part != "common":
             names_m.append(muscles[unit.index])
-    if cand.effect == "thermal_drift":
-        for j, name in enumerate(muscles):
-            entry = params.get(name)
-            if entry and abs(entry.get("coefficient_N_per_C", 0)) > 1e-9:
-                entry["reference_temperature_C"] = float(
-                    physics.temp_mean[j] - entry["offset_at_mean_temperature_N"]
-                    / entry["coefficient_N_per_C"])
     return params, sorted(set(names_m), key=muscles.index), sorted(set(names_j),
                                                                    key=joints.index)
 
 
 def effect_joints(cand: Candidate, physics: Physics, data: Samples, joints: list[str],
-                  base: Fit) -> list[str]:
+                  final: Fit) -> list[str]:
     """Joints whose torque the effect changes noticeably (≥ 20 % of the largest)."""
-    before = apply_effects(physics, data, base.units, base.params)
-    after = apply_effects(physics, data, cand.fit.units, cand.fit.params)
-    jac = schema_jacobian(physics, after.theta, cand.fit.weights)
+    without = np.array([0.0 if u in cand.units else p
+                        for u, p in zip(final.units, final.params, strict=True)])
+    before = apply_effects(physics, data, final.units, without)
+    after = apply_effects(physics, data, final.units, final.params)
+    jac = schema_jacobian(physics, after.theta, final.weights)
     change = (np.einsum("bmn,bm->bn", jac, after.tension - before.tension)
               + (after.tau - before.tau))
     rms = np.sqrt(np.mean(change**2, axis=0))
@@ -84,10 +93,11 @@ def effect_joints(cand: Candidate, physics: Physics, data: Samples, joints: list
 
 
 def effect_entry(cand: Candidate, physics: Physics, data: Samples, joints: list[str],
-                 muscles: list[str], base: Fit) -> dict:
-    params, names_m, names_j = parameters(cand, physics, joints, muscles)
+                 muscles: list[str], final: Fit) -> dict:
+    """One named effect: parameters from the joint fit ``final``, evidence from its round."""
+    params, names_m, names_j = parameters(cand, physics, joints, muscles, final)
     if cand.effect != "joint_offset":
-        names_j = effect_joints(cand, physics, data, joints, base)
+        names_j = effect_joints(cand, physics, data, joints, final)
     return {
         "name": cand.effect,
         "muscles": names_m,
@@ -112,9 +122,9 @@ def text_report(result: dict) -> str:
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")
     if not result["effects"]:
-        lines.append("No significant missing physics: the recording matches the model up to "
-                     "noise (no candidate passed the likelihood-ratio, BIC and "
-                     "cross-validation tests).")
+        lines.append("No significant missing physics: no candidate passed the "
+                     "likelihood-ratio, BIC and cross-validation tests (see below whether "
+                     "this recording could have seen one).")
     else:
         lines.append("Missing physics, most significant first:")
         for i, e in enumerate(result["effects"], 1):
@@ -127,6 +137,10 @@ def text_report(result: dict) -> str:
                                   if isinstance(v, float) and k != "se")
                 se = values.get("se")
                 lines.append(f"       {unit}: {shown}" + (f" (± {se:.2g})" if se else ""))
+    if "residual" in result:
+        lines += [""] + leftover_text(result["residual"])
+    if "detectable" in result:
+        lines += [""] + detectable_text(result["detectable"], not result["effects"])
     fit = result["fit"]
     lines += ["", f"Held-out fit ({fit['metric']}): before {fit['before']:.4g} → after "
                   f"{fit['after']:.4g}",

@@ -8,7 +8,8 @@ import numpy as np
 import pyarrow as pa
 
 from pimbs_calibration.recording import Recording, read_recording, write_recording
-from pimbs_learn.diagnosis.fit import fit_effects
+from pimbs_learn.diagnosis.detect import detectable
+from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import (
     MIN_SAMPLES,
     DiagnosisInputError,
@@ -16,8 +17,9 @@ from pimbs_learn.diagnosis.inputs import (
     pair,
     too_few_samples,
 )
+from pimbs_learn.diagnosis.leftover import leftover
 from pimbs_learn.diagnosis.locate import locate
-from pimbs_learn.diagnosis.model import EFFECTS, Fit, apply_effects, evaluate
+from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
 from pimbs_learn.diagnosis.report import effect_entry
 from pimbs_learn.diagnosis.select import select_effects
 
@@ -57,17 +59,17 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
     null = fit_effects(physics, data, [], key="full")
-    named, tried, cv_null = select_effects(physics, data, null, effects, progress)
-    final: Fit = named[-1].fit if named else null
-    cv_final = named[-1].cv_after if named else cv_null
+    named, tried, cv_null, final = select_effects(physics, data, null, effects, progress,
+                                                  paired.reference)
+    # held-out score of the final model on the null model's noise scale (the "before")
+    cv_final = (cross_validate(physics, data, final.units, (null.sigma_len, null.sigma_tau),
+                               x0=final.params) if named else cv_null)
 
     r_len, r_tau = evaluate(physics, null, data, key="full")
     location = locate(physics, null, data, r_len, r_tau, paired.joints, paired.muscles,
                       paired.reference)
-    entries, base = [], null
-    for cand in named:
-        entries.append(effect_entry(cand, physics, data, paired.joints, paired.muscles, base))
-        base = cand.fit
+    entries = [effect_entry(cand, physics, data, paired.joints, paired.muscles, final)
+               for cand in named]
     result = {
         "real": str(real_rec.path), "reference": None if ref_rec is None else str(ref_rec.path),
         "robot": None if arm is None else arm.robot.name,
@@ -79,10 +81,14 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
                 "length_rms_m": {"before": cv_null["length_rms"],
                                  "after": cv_final["length_rms"]}},
         "location": location,
+        "residual": leftover(physics, final, data, paired.joints, paired.muscles,
+                             paired.reference),
+        "detectable": detectable(physics, data, final, paired.joints, paired.muscles, effects),
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
                         "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
-                        "named": c in named} for c in tried],
+                        "named": any(c.effect == n.effect and set(c.units) <= set(n.units)
+                                     for n in named)} for c in tried],
         "model": {**model_info, "noise_torque_Nm": null.sigma_tau.tolist(),
                   "noise_length_m": null.sigma_len.tolist()},
     }

@@ -6,19 +6,20 @@ The effect is then refitted exactly and scored three ways, all of which must agr
 it is named:
 
 * a likelihood-ratio test against the current model (p below ``P_VALUE``);
-* ΔBIC > 0, which also ranks effects and prefers the simpler of nested ones (an offset
-  over a thermal drift that only adds a flat slope);
+* ΔBIC > 0, which also ranks effects;
 * five-fold cross-validation: held-out residuals must shrink, by ``MIN_CV_GAIN`` overall
   and significantly sample by sample (paired z ≥ ``MIN_CV_Z``), so structure that a
   flexible effect could absorb on the training rows is not reported, while an effect on a
   few muscles of many still is.
 
-Effects are added one at a time (forward selection); the strongest comes first.
+Effects are added one at a time (forward selection), the strongest first, each on top of
+a joint refit of all those already selected; after each addition, earlier effects that the
+new one makes redundant are dropped again (backward check).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -40,12 +41,13 @@ from pimbs_learn.diagnosis.model import (
 P_VALUE = 1e-6      # per test; strict, since recordings have hundreds of rows
 MIN_CV_GAIN = 0.01  # held-out score must improve by at least 1 % ...
 MIN_CV_Z = 5.0      # ... and significantly: paired z of per-sample held-out residuals
-MAX_EFFECTS = 3
+UNIT_Z = float(np.sqrt(chi2.isf(P_VALUE, 1)))  # a muscle/joint's own parameter: |p/se|
 # A link's mass: one subtree. Subtrees' potentials overlap, so two would trade off
 # against each other with meaningless, cancelling scales.
 MAX_GROUPS = {"link_mass": 1}
-FD_STEP = {"tension_offset": 1e-2, "thermal_drift": 1e-3, "tendon_friction": 1e-4,
-           "elastic_stiffness": 1e-4, "joint_offset": 1e-6, "link_mass": 1e-4}
+FD_STEP = {"tension_offset": 1e-2, "tension_gain": 1e-4, "thermal_drift": 1e-3,
+           "tendon_friction": 1e-4, "elastic_stiffness": 1e-4, "joint_offset": 1e-6,
+           "link_mass": 1e-4}
 
 
 @dataclass
@@ -91,7 +93,12 @@ def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.nda
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
     """Units of ``effect`` that the residuals of ``base`` ask for (greedy, linearised)."""
     sigma = (base.sigma_len, base.sigma_tau)
-    groups = units_of(effect, data.theta.shape[1], data.tension.shape[1])
+    groups = [g for g in units_of(effect, data.theta.shape[1], data.tension.shape[1])
+              if not any(u in base.units for u in g)]  # an effect may grow, never repeat
+    taken = sum(any(u in base.units for u in g)
+                for g in units_of(effect, data.theta.shape[1], data.tension.shape[1]))
+    if not groups or taken >= MAX_GROUPS.get(effect, len(groups) + taken):
+        return []
     r0 = _whitened(physics, data, base.units, base.params, sigma)
     cols = {}
     for group in groups:
@@ -129,6 +136,16 @@ def fit_candidate(physics: Physics, data: Samples, base: Fit, effect: str,
     all_units = [*base.units, *units]
     fit = fit_effects(physics, data, all_units, x0=np.append(base.params, np.zeros(len(units))),
                       key="full")
+    if effect != "link_mass" and fit.cov is not None and len(units) > 1:
+        # the screen is linear and greedy: a muscle it took along that the exact joint fit
+        # finds indistinguishable from zero is not part of the effect
+        z = np.abs(fit.params) / np.sqrt(np.maximum(np.diag(fit.cov), 1e-300))
+        weak = [u for u in units if z[all_units.index(u)] < UNIT_Z]
+        if weak and len(weak) < len(units):
+            units = [u for u in units if u not in weak]
+            all_units = [*base.units, *units]
+            x0 = np.array([fit.params[fit.units.index(u)] for u in all_units])
+            fit = fit_effects(physics, data, all_units, x0=x0, key="full")
     df = len(units)
     lr = max(2.0 * (fit.log_lik - base.log_lik), 0.0)
     return Candidate(effect, units, fit, lr, df, float(chi2.sf(lr, df)),
@@ -140,49 +157,122 @@ def _cross_validate(physics: Physics, data: Samples, cand: Candidate, base: Fit)
                                    (base.sigma_len, base.sigma_tau), x0=cand.fit.params)
 
 
-def _prefer_simpler(physics: Physics, data: Samples, best: Candidate,
-                    candidates: list[Candidate], base: Fit) -> Candidate:
-    """Of nested effects keep the richer one only if its extra parameters earn their keep.
+def _drop(fit: Fit, units: list[Unit]) -> tuple[list[Unit], np.ndarray]:
+    keep = [i for i, u in enumerate(fit.units) if u not in units]
+    return [fit.units[i] for i in keep], fit.params[keep]
 
-    A thermal drift is an offset plus a slope in temperature: where an offset explains the
-    data, the slope must add significance and held-out accuracy of its own.
+
+def prune(physics: Physics, data: Samples, named: list[Candidate], current: Fit,
+          newest: str) -> tuple[list[Candidate], Fit]:
+    """Backward step: drop a named effect the others now explain (weakest first).
+
+    An effect named early may have stood in for two that were present together (an offset
+    and a stiffness for one gain error); once the right effects are in the model, its own
+    likelihood-ratio test must still pass, or it goes.
     """
-    simpler = NESTED.get(best.effect)
-    other = next((c for c in candidates if c.effect == simpler), None)
-    if other is None:
-        return best
-    if other.cv_after is None:
-        _cross_validate(physics, data, other, base)
-    extra_df = max(best.df - other.df, 1)
-    gain = 1.0 - best.cv_after["score"] / other.cv_after["score"]
-    d = other.cv_after["per_sample"] - best.cv_after["per_sample"]
-    z = d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300)
-    if (chi2.sf(best.lr - other.lr, extra_df) < P_VALUE and gain >= MIN_CV_GAIN
-            and z >= NESTED_CV_Z and other.significant):
-        return best
-    return other if other.significant else best
+    while len(named) > 1:
+        worst, worst_fit, worst_lr = None, None, np.inf
+        for cand in (c for c in named if c.effect != newest):
+            units, params = _drop(current, cand.units)
+            reduced = fit_effects(physics, data, units, x0=params, key="full")
+            lr = max(2.0 * (current.log_lik - reduced.log_lik), 0.0)
+            if lr < worst_lr:
+                worst, worst_fit, worst_lr = cand, reduced, lr
+        df = len(worst.units)
+        if chi2.sf(worst_lr, df) < P_VALUE and worst_lr - df * np.log(data.n) > 0:
+            break
+        named = [c for c in named if c is not worst]
+        current = worst_fit
+    return _prune_units(physics, data, named, current)
 
 
-NESTED = {"thermal_drift": "tension_offset"}
-# Which form of an effect already shown real: the likelihood ratio carries the decision,
-# the held-out check only has to agree (heavy-tailed per-sample gains give modest z).
-NESTED_CV_Z = 3.0
+def _prune_units(physics: Physics, data: Samples, named: list[Candidate], current: Fit
+                 ) -> tuple[list[Candidate], Fit]:
+    """Drop muscles/joints of a named effect that the joint fit finds indistinguishable
+    from zero (a gain taken along on a muscle whose offset came later)."""
+    if current.cov is None:
+        return named, current
+    z = np.abs(current.params) / np.sqrt(np.maximum(np.diag(current.cov), 1e-300))
+    weak = []
+    for c in named:
+        low = [u for u in c.units if z[current.units.index(u)] < UNIT_Z]
+        if c.effect != "link_mass" and len(low) < len(c.units):
+            weak += low
+    if not weak:
+        return named, current
+    named = [replace(c, units=[u for u in c.units if u not in weak]) for c in named]
+    units, params = _drop(current, weak)
+    return named, fit_effects(physics, data, units, x0=params, key="full")
+
+
+MAX_EFFECTS = 5
 CV_PER_ROUND = 3  # cross-validate at most this many of a round's best candidates
 
 
+def _cv_of(physics: Physics, data: Samples, fit: Fit) -> dict:
+    """Held-out score of ``fit``'s model on the scale of its own noise levels."""
+    return cross_validate(physics, data, fit.units, (fit.sigma_len, fit.sigma_tau),
+                          x0=fit.params)
+
+
+def reference_explains(physics: Physics, reference: Samples, ref_null: Fit,
+                       cand: Candidate) -> bool:
+    """Is the candidate the model's own approximation rather than missing physics?
+
+    The reference is a clean simulation of the same poses. Where the nuisance models (a
+    polynomial body schema, a fitted gravity function) cannot follow the arm exactly, the
+    reference "wants" the same effect as the real data. Then the effect counts only if the
+    real parameters differ significantly from the reference's.
+    """
+    fit = fit_effects(physics, reference, cand.units, key="ref")
+    df = len(cand.units)
+    if chi2.sf(max(2.0 * (fit.log_lik - ref_null.log_lik), 0.0), df) >= P_VALUE:
+        return False
+    idx = [cand.fit.units.index(u) for u in cand.units]
+    if cand.fit.cov is None or fit.cov is None:
+        return False
+    diff = cand.fit.params[idx] - fit.params
+    cov = cand.fit.cov[np.ix_(idx, idx)] + fit.cov
+    stat = float(diff @ np.linalg.pinv(cov) @ diff)
+    return chi2.sf(stat, df) >= P_VALUE
+
+
+def _merge(named: list[Candidate], best: Candidate) -> list[Candidate]:
+    """Add ``best``; more units of an effect already named join that effect."""
+    old = next((c for c in named if c.effect == best.effect), None)
+    if old is None:
+        return [*named, best]
+    grown = replace(old, units=[*old.units, *best.units], fit=best.fit)
+    return [grown if c is old else c for c in named]
+
+
+MAX_ROUNDS = 6
+
+
 def select_effects(physics: Physics, data: Samples, null: Fit,
-                   effects: tuple[str, ...] = EFFECTS,
-                   progress=None) -> tuple[list[Candidate], list[Candidate], dict]:
-    """Forward selection. Returns (named effects, every candidate tried, null CV score)."""
-    sigma = (null.sigma_len, null.sigma_tau)
-    cv_null = cross_validate(physics, data, [], sigma)
+                   effects: tuple[str, ...] = EFFECTS, progress=None,
+                   reference: Samples | None = None
+                   ) -> tuple[list[Candidate], list[Candidate], dict, Fit]:
+    """Forward selection with a backward check after each step.
+
+    Each round tests every remaining effect on top of the model with all selected effects
+    (jointly refitted), names the strongest that passes, then drops any earlier effect the
+    new one made redundant. Every round scores held-out residuals on the noise scale of
+    the current model, so a weak second effect beside a strong first one is judged on the
+    residuals that are left, not on the scale of the raw mismatch.
+
+    Returns (named effects, every candidate tried, null CV score, joint fit of the named).
+    """
+    cv_null = cross_validate(physics, data, [], (null.sigma_len, null.sigma_tau))
     base, cv_base = null, cv_null
     named: list[Candidate] = []
     tried: list[Candidate] = []
-    remaining = list(effects)
-    for _ in range(MAX_EFFECTS):
+    if reference is not None and reference.n != data.n:
+        reference = None
+    ref_null = fit_effects(physics, reference, [], key="ref") if reference else None
+    for _ in range(MAX_ROUNDS):
         round_candidates = []
-        for effect in remaining:
+        for effect in effects:
             if progress:
                 progress(effect)
             cand = fit_candidate(physics, data, base, effect, cv_base)
@@ -194,13 +284,14 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
         best = None
         for cand in ranked[:CV_PER_ROUND]:
             _cross_validate(physics, data, cand, base)
-            if cand.significant:
+            if cand.significant and not (reference is not None and reference_explains(
+                    physics, reference, ref_null, cand)):
                 best = cand
                 break
         if best is None:
             break
-        best = _prefer_simpler(physics, data, best, round_candidates, base)
-        named.append(best)
-        remaining.remove(best.effect)
-        base, cv_base = best.fit, best.cv_after
-    return named, tried, cv_null
+        named, base = prune(physics, data, _merge(named, best), best.fit, best.effect)
+        if len({c.effect for c in named}) > MAX_EFFECTS:
+            break
+        cv_base = _cv_of(physics, data, base)
+    return named, tried, cv_null, base

@@ -1,0 +1,146 @@
+"""Several effects at once, loadcell gain, anchored drift, what is left, what few samples see.
+
+Judged on the foreign arm (`tests/foreign_arm.py`: an independent simulator the method was
+not developed on) and on PIMBS' own simulated arm for the detectability limits.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.effects import parse_effect
+from pimbs_calibration.recording import write_recording
+from pimbs_calibration.simulate import simulate
+from pimbs_learn.diagnosis.report import text_report
+from pimbs_learn.diagnosis.run import diagnose
+from tests.foreign_arm import record
+
+# (concealed [(effect, size, muscle/joint index)], routing, expected {effect: where})
+CASES = {
+    "friction+offset": ([("tendon_friction", 0.12, 0), ("tension_offset", 10.0, 2)], 0.0,
+                        {"tendon_friction": None, "tension_offset": ["mus2"]}),
+    "offset+friction-same-muscle-other-routing": (
+        [("tendon_friction", 0.12, 0), ("tension_offset", 10.0, 0)], 0.002,
+        {"tendon_friction": None, "tension_offset": ["mus0"]}),
+    "mass+joint_offset": ([("link_mass", 1.4, 2), ("joint_offset", 0.05, 1)], 0.0,
+                          {"link_mass": None, "joint_offset": ["knee"]}),
+    "gain": ([("tension_gain", 0.15, 3)], 0.0, {"tension_gain": ["mus3"]}),
+    "drift-zeroed-at-start": ([("thermal_drift", 0.5, 0)], 0.0, {"thermal_drift": None}),
+    "gain+drift+joint_offset": (
+        [("tension_gain", 0.2, 1), ("thermal_drift", 0.5, 0), ("joint_offset", 0.03, 0)], 0.0,
+        {"tension_gain": ["mus1"], "thermal_drift": None, "joint_offset": ["hip"]}),
+}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    path = tmp_path_factory.mktemp("foreign") / "sim.parquet"
+    record(path, 300, 3)
+    return path
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_foreign_arm_several_effects_named_as_a_set(tmp_path, reference, case):
+    hidden, routing, expected = CASES[case]
+    real = tmp_path / "real.parquet"
+    record(real, 300, 3, effects=tuple(hidden), routing=routing)
+    result, _ = diagnose(real, reference)
+    named = {e["name"]: e for e in result["effects"]}
+    assert set(named) == set(expected), [(e["name"], e["muscles"], e["joints"])
+                                         for e in result["effects"]]
+    for effect, where in expected.items():
+        if where is not None:
+            entry = named[effect]
+            assert (entry["joints"] if effect == "joint_offset" else entry["muscles"]) == where
+    assert result["fit"]["after"] < 0.9 * result["fit"]["before"]
+    assert result["residual"]["consistent_with_noise"], result["residual"]
+    if "tension_gain" in named:
+        (gain,) = named["tension_gain"]["parameters"].values()
+        assert abs(gain["gain"] - next(h[1] for h in hidden if h[0] == "tension_gain")) < 0.01
+
+
+def test_drift_is_anchored_where_the_loadcell_was_zeroed(tmp_path, reference):
+    """Zero error at the zeroing temperature: a drift, not a constant offset."""
+    real = tmp_path / "real.parquet"
+    record(real, 300, 3, effects=(("thermal_drift", 0.5, 0),))
+    result, _ = diagnose(real, reference)
+    assert [e["name"] for e in result["effects"]] == ["thermal_drift"]
+    params = result["effects"][0]["parameters"]
+    common = params.pop("all muscles (common)", {"coefficient_N_per_C": 0.0,
+                                                 "reference_temperature_C": [22.0]})
+    assert result["effects"][0]["muscles"] == [f"mus{j}" for j in range(6)]
+    for j in range(6):  # every loadcell: 0.5 N/°C in all, zero near 22 °C
+        own = params.get(f"mus{j}", {}).get("coefficient_N_per_C", 0.0)
+        assert abs(common["coefficient_N_per_C"] + own - 0.5) < 0.05
+    for t in common["reference_temperature_C"] + [v["reference_temperature_C"]
+                                                  for v in params.values()]:
+        assert abs(t - 22.0) < 1.5
+
+
+def test_what_no_effect_explains_is_reported_with_where(tmp_path, reference):
+    """A loadcell creeping over the session is in no effect's vocabulary: the report must
+    say the rest is not noise and that it goes with time."""
+    real = tmp_path / "real.parquet"
+    record(real, 300, 3, effects=(("creep", 12.0, 2),))
+    result, _ = diagnose(real, reference)
+    left = result["residual"]
+    assert not left["consistent_with_noise"]
+    assert any(w["factor"] == "time" for s in left["structure"] for w in s["depends_on"][:1])
+    assert "NOT noise" in text_report(result)
+
+
+def _pair(tmp_path, arm, n, effects=(), seed=5, map_kind="al"):
+    paths = []
+    for name, hidden in (("sim", ()), ("real", effects)):
+        data, meta = simulate(arm, n, map_kind, seed=seed,
+                              effects=tuple(parse_effect(e, seed=seed) for e in hidden))
+        paths.append(tmp_path / f"{name}.parquet")
+        write_recording(paths[-1], data, meta)
+    return paths[1], paths[0]
+
+
+def test_detectable_size_separates_nothing_found_from_too_few_samples(tmp_path):
+    """30 AL samples: nothing named, and the report says which typical effects it could not
+    have seen. The limit it states is honest: that size on that muscle is named, a quarter
+    of it is not."""
+    arm = ArmModel.load("two-link-4-muscle")
+    real, ref = _pair(tmp_path, arm, 30)
+    result, _ = diagnose(real, ref)
+    assert result["effects"] == []
+    det = result["detectable"]["effects"]
+    assert not det["thermal_drift"]["typical_detectable"]
+    text = text_report(result)
+    assert "Too few samples to tell" in text and "thermal_drift" in text
+    offset, muscle = det["tension_offset"]["smallest"], det["tension_offset"]["at"]
+    for factor, named in ((1.0, True), (0.25, False)):
+        real, ref = _pair(tmp_path, arm, 30, [f"tension_offset:{factor * offset},"
+                                              f"muscles={muscle}"])
+        result, _ = diagnose(real, ref)
+        assert ("tension_offset" in [e["name"] for e in result["effects"]]) is named, factor
+
+
+def test_cli_reports_rest_and_limits_and_never_overwrites(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from pimbs_cli.main import main
+
+    arm = ArmModel.load("two-link-4-muscle")
+    real, ref = _pair(tmp_path, arm, 60, ["tension_gain:0.15,muscles=m1"], map_kind="atl")
+    out = tmp_path / "d.json"
+    out.write_text("keep me")
+    args = ["diagnose", str(real), "--reference", str(ref), "--json", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 1 and "--force" in r.output and out.read_text() == "keep me"
+    r = CliRunner().invoke(main, [*args, "--force"])
+    assert r.exit_code == 0, r.output
+    assert "tension_gain (m1" in r.output and "consistent with noise" in r.output
+    assert "Smallest effects this recording names" in r.output
+    result = json.loads(out.read_text())
+    assert result["effects"][0]["parameters"]["m1"]["gain"] == pytest.approx(0.15, abs=0.01)
+    assert set(result["detectable"]["effects"]) >= {"tendon_friction", "joint_offset"}
+    r = CliRunner().invoke(main, ["diagnose", str(real), "--reference", str(ref), "--json",
+                                  str(tmp_path / "no-such-dir" / "d.json")])
+    assert r.exit_code == 1 and "does not exist" in r.output
