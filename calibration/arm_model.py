@@ -335,7 +335,18 @@ class ArmModel:
     def _qp(self, theta: np.ndarray, f_min: np.ndarray, weight: np.ndarray,
             f_max: np.ndarray | None = None) -> np.ndarray:
         G = self._length_jacobian(theta)[1]
+        return self.tensions_for(theta, G, f_min, weight, f_max)
+
+    def tensions_for(self, theta: np.ndarray, G: np.ndarray, f_min: np.ndarray,
+                     weight: np.ndarray | None = None, f_max: np.ndarray | None = None
+                     ) -> np.ndarray:
+        """The tension QP of one pose with a given muscle Jacobian G (M, N).
+
+        ``tension_distribution`` passes the geometric G; a learned body schema passes its own
+        (the torque balance is the same, the moment arms are the schema's).
+        """
         g = self._gravity(theta)
+        weight = np.eye(self.n_muscles) if weight is None else weight
         # quadprog: min 1/2 x^T P x - a^T x  s.t.  C^T x >= b, the first meq rows as equalities.
         eye = np.eye(self.n_muscles)
         C = np.hstack([-G, eye] + ([] if f_max is None else [-eye]))

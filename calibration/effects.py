@@ -19,7 +19,9 @@ Specs are text, ``NAME[:PARAMS]``: ``tendon_friction:0.2``,
 ``link_mass:1.4,link=forearm`` (mass scale),
 ``joint_offset:0.05,joints=elbow_pitch``, ``thermal_drift:0.8`` (N/°C),
 ``elastic_stiffness:0.6`` (K scale), ``routing:0.003`` (m, random via-point shifts; the
-nuisance a body schema learns, not a diagnosis target).
+nuisance a body schema learns, not a diagnosis target). The shifts are drawn from the run's
+seed unless the spec names its own, ``routing:0.004,seed=3``: one arm, whatever poses a
+collection draws (a schema learned on one collection is used on another).
 """
 
 from __future__ import annotations
@@ -205,6 +207,8 @@ def parse_effect(spec: str, seed: int = 0) -> Effect:
                 effect.joints = tuple(value.split("+"))
             elif key == "link":
                 effect.link = value
+            elif key == "seed":  # which arm: the same routing for every pose sequence
+                effect.seed = int(value)
             elif key in ("magnitude", "value", "mu", "scale", "offset", "coef", "gain"):
                 effect.magnitude = float(value)
             else:

@@ -79,6 +79,11 @@ def _stop_on_signals() -> Iterator[None]:
               show_default=True, help="s; an unsettled sample is recorded, flagged and warned")
 @click.option("--fixed-wait", type=click.FloatRange(min=0), default=None,
               help="s: wait this long before each reading instead of detecting settling")
+@click.option("--schema", "schema_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=None,
+              help="command the poses with this learned body schema (a `pimbs train --out` "
+                   "directory) instead of the geometric model; samples where it would "
+                   "extrapolate or be unsafe fall back to the model, with a warning")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
 @click.option("--calibration", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -88,8 +93,8 @@ def _stop_on_signals() -> Iterator[None]:
 def command(port: str, samples: int, robot: str, out: Path | None, seed: int, map_kind: str,
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
-            settle_timeout: float, fixed_wait: float | None, mock_speed: float,
-            calibration: Path | None) -> None:
+            settle_timeout: float, fixed_wait: float | None, schema_dir: Path | None,
+            mock_speed: float, calibration: Path | None) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
@@ -99,7 +104,6 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     from pimbs_calibration.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
-    from pimbs_hw.collection.plan import CollectionPlan
     from pimbs_hw.collection.resume import collection_meta, open_recording
     from pimbs_hw.collection.settle import SettleConfig
     from pimbs_hw.mock.faults import parse_faults
@@ -114,12 +118,17 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
     check_output(out, force=True, what="recording")  # no directory made for a mistyped path
-    plan = CollectionPlan(model, samples, seed, map_kind)
+    plan, schema_meta = _plan(model, samples, seed, map_kind, schema_dir)
+    if schema_dir is not None and any(c.startswith("routing") and "seed=" not in c
+                                      for c in conceal):
+        click.echo(f"note: the concealed routing is drawn from --seed {seed}, so it is the "
+                   "arm the schema was learned on only if that collection used the same "
+                   "seed; name the arm in both: --conceal routing:MAG,seed=S", err=True)
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
-    meta = collection_meta(model, plan.meta(), port=port, simulated=simulated,
-                           settle=settle.meta(), move=moves.meta())
+    meta = collection_meta(model, {**plan.meta(), **schema_meta}, port=port,
+                           simulated=simulated, settle=settle.meta(), move=moves.meta())
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     zero_m, note = _zeros(model.robot, calibration, simulated)
@@ -130,6 +139,23 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     with _stop_on_signals():
         _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed, zero_m,
              note)
+
+
+def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):
+    """The geometric plan, or the learned schema's (and the metadata that says which)."""
+    from pimbs_hw.collection.plan import CollectionPlan
+
+    if schema_dir is None:
+        return CollectionPlan(model, samples, seed, map_kind), {}
+    from pimbs_hw.collection.schema_plan import SchemaPlan
+    from pimbs_learn import load_body_schema
+    from pimbs_learn.data import file_sha256
+    from pimbs_learn.io import WEIGHTS
+
+    schema = load_body_schema(schema_dir)
+    plan = SchemaPlan(model, schema, samples, seed, map_kind)
+    return plan, {"schema": str(schema_dir),
+                  "schema_weights_sha256": file_sha256(schema_dir / WEIGHTS)}
 
 
 def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, str | None]:

@@ -46,6 +46,7 @@ def summary(path: Path) -> str:
             f"  tau_gravity  [N·m]  {_range(tau)}"
             + (f"   ({missing} rows without)" if missing else ""),
         ]
+        lines += pose_accuracy(rec)
     if rec.extra_columns:
         lines.append(f"  extra columns: {', '.join(rec.extra_columns)}")
     other = sorted(k for k in rec.meta if k not in ("format", "robot", "joints", "muscles",
@@ -53,6 +54,29 @@ def summary(path: Path) -> str:
     if other:
         lines.append(f"  metadata: {', '.join(other)}")
     return "\n".join(lines)
+
+
+def pose_accuracy(rec) -> list[str]:
+    """rms of θ − θ_command per joint in degrees: how well the commands reach their poses.
+
+    Only meaningful where θ is measured (joint encoders); otherwise θ is itself a model
+    estimate, which the line says.
+    """
+    err = rec.theta - rec.theta_command
+    ok = np.isfinite(err).all(axis=1)
+    if not ok.any():
+        return []
+    rms = np.degrees(np.sqrt(np.mean(err[ok] ** 2, axis=0)))
+    per_joint = ", ".join(f"{j} {r:.3g}°" for j, r in zip(rec.joints, rms, strict=True))
+    source = rec.meta.get("theta_source")
+    note = "   (θ estimated by the model, not measured)" if source == "model" else ""
+    schema = rec.meta.get("schema")
+    by = ""
+    if schema:
+        kinds, counts = np.unique(np.asarray(rec.array("commanded_by"), str), return_counts=True)
+        split = ", ".join(f"{c} {k}" for k, c in zip(kinds, counts, strict=True))
+        by = f"   [commanded with body schema {schema}: {split}]"
+    return [f"  pose accuracy rms(θ − θ_command)  {per_joint}{by}{note}"]
 
 
 @click.command("info")

@@ -23,6 +23,8 @@ COMMANDS: dict[str, str] = {
     "zero": "pimbs_cli.zero",
     "robot": "pimbs_cli.robot",
     "import": "pimbs_cli.import_log",
+    "estimate": "pimbs_cli.estimate",
+    "export": "pimbs_cli.export",
 }
 
 

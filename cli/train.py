@@ -124,6 +124,12 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
         console.print(f"the robot description's model alone ({run.prior_robot}): L_eval "
                       f"{geo['eval_loss']:.4g} (rms {geo['rms_mm']:.3f} mm) on the same "
                       "evaluation samples")
+    angles = _joint_angles(result, robot)
+    metrics.update(eval_joint_angle_rms_deg=angles.rms_error_deg.tolist(),
+                   eval_joint_angle_rms_deg_geometric=None
+                   if angles.geometric_rms_error_deg is None
+                   else angles.geometric_rms_error_deg.tolist())
+    console.print(f"joint angles estimated from eval lengths and tensions, rms: {angles.line()}")
     if out is not None:
         save_model(result, out)
         console.print(f"model written to {out}/")
@@ -133,4 +139,15 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
         write_text_atomic(json_path, json.dumps(metrics, indent=2) + "\n")
     click.echo(json.dumps({k: metrics[k] for k in ("eval_loss", "train_loss", "best_epoch",
                                                    "epochs", "seconds", "eval_rms_mm",
-                                                   "model_rms_mm") if k in metrics}))
+                                                   "model_rms_mm", "eval_joint_angle_rms_deg")
+                           if k in metrics}))
+
+
+def _joint_angles(result, robot: str | None):
+    """Joint-angle error on the evaluation samples (degrees: what a roboticist reads)."""
+    from pimbs_learn.estimate import joint_angle_report
+    from pimbs_learn.io import schema_from_result
+
+    ev = result.run.eval
+    return joint_angle_report(schema_from_result(result), ev.theta, ev.tension, ev.length,
+                              robot=robot or ev.robot)

@@ -18,6 +18,7 @@ from safetensors.numpy import load_file, save
 
 from pimbs_calibration.atomic import write_bytes_atomic, write_text_atomic
 from pimbs_learn.data import LearnError
+from pimbs_learn.domain import Domain
 from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES, SchemaGraph
 from pimbs_learn.model import PARAM_NAMES, Params, Scaling
 from pimbs_learn.prior import KEYS as PRIOR_KEYS
@@ -46,6 +47,8 @@ def model_meta(result: TrainResult) -> dict[str, Any]:
                                     int(w["w2"].shape[0]), int(w["w3"].shape[0])],
                          "activation": "tanh after layers 1 and 2"},
         "scaling": result.scaling.to_json(),
+        "domain": Domain.from_samples(run.train.theta,
+                                      run.train.tension if run.atl else None).to_json(),
         "loss": run.loss.name, "alpha": run.loss.alpha,
         "data": {"path": run.train.path, "sha256": run.train.sha256},
         "eval_data": {"path": run.eval.path, "sha256": run.eval.sha256},
@@ -99,6 +102,7 @@ class BodySchema:
         self.atl: bool = meta["map"] == "atl"
         self.structure: str = meta.get("structure", MLP)
         self.scaling = Scaling.from_json(meta["scaling"])
+        self.domain = Domain.from_meta(meta)  # training ranges: where it is not extrapolating
         self.graph = SchemaGraph(params, meta).eval()
 
     @property

@@ -59,6 +59,8 @@ class Target:
     hold_command: np.ndarray     # (M,) m for held muscles, N for the others
     approach: np.ndarray         # (M,) ±1: direction of each muscle's final motion (+1 out)
     overshoot_command: np.ndarray  # (M,) hold_mode command reached before the final ramp
+    commanded_by: str | None = None  # "schema" / "geometric" when a learned schema is in use
+    note: str = ""                   # why this sample fell back from the schema (warned)
 
 
 class CollectionPlan:

@@ -15,8 +15,9 @@ from pimbs_calibration.arm_model import ArmModel
 from pimbs_calibration.recording import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
-RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map")
-_OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map"}
+RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map", "schema")
+_OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map",
+           "schema": "--schema"}
 
 
 def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,
@@ -53,7 +54,8 @@ def open_recording(path: Path, meta: Mapping[str, Any], resume: bool
             old, new = existing.get(key), meta.get(key)
             if old == new:
                 continue
-            fix = (f"rerun with {_OPTION[key]} {old}" if key in _OPTION
+            fix = (f"rerun with {_OPTION[key]} {old}" if key in _OPTION and old is not None
+                   else f"rerun without {_OPTION[key]}" if key in _OPTION
                    else "the robot description changed since; use the one it was made with")
             raise ResumeError(f"cannot resume {path}: it was collected with {key}={old!r}, "
                               f"this run has {key}={new!r}; {fix} to continue it, or choose "

@@ -116,12 +116,14 @@ class Collector:
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
             try:
-                target = self.plan.target(i)
+                target = self._next_target(i, previous)
             except InfeasiblePoseError as exc:
                 self.summary.skipped.append(i)
                 self._warn(f"sample {i} skipped: {exc}")
                 self.summary.next_sample = i + 1
                 continue
+            if target.note:
+                self._warn(f"sample {i}: {target.note}")
             model, muscles, cfg = self.model, self.model.muscles, self.move
             if previous is not None:
                 reading = run_ramp(self.link, release(model, reading, previous, cfg))
@@ -137,6 +139,8 @@ class Collector:
             held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
             row = self._row(i, target.theta, held)
+            if target.commanded_by:
+                row["commanded_by"] = target.commanded_by
             self._append_holding(row, target)
             reading, theta = held.reading, row["theta"]
             self._account(i, held, row)
@@ -167,16 +171,28 @@ class Collector:
         slow disk, which must not starve the 0.25 s watchdog. The next pose is commanded only
         once the row is on disk; a stop while writing still waits for the write to finish.
         """
-        with concurrent.futures.ThreadPoolExecutor(1, "recording-writer") as pool:
-            done = pool.submit(self.writer.append, row)
+        self._holding(target, lambda: self.writer.append(row))  # RecordingWriteError raises
+
+    def _next_target(self, i: int, previous: Target | None) -> Target:
+        """Plan sample ``i`` while the arm still holds ``previous`` (or, relaxed, is read): a
+        plan takes several equilibrium solves (more with a learned schema), longer than a
+        watchdog period."""
+        return self._holding(previous, lambda: self.plan.target(i))
+
+    def _holding(self, target: Target | None, work: Callable[[], Any]) -> Any:
+        """``work()`` in a worker thread while ``target``'s holding is commanded (None: the
+        arm is only read); its result."""
+        with concurrent.futures.ThreadPoolExecutor(1, "collection-worker") as pool:
+            done = pool.submit(work)
             try:
                 while not done.done():
-                    self.link.command(target.hold_mode, target.hold_command)
+                    if target is not None:
+                        self.link.command(target.hold_mode, target.hold_command)
                     self.link.read()
                     concurrent.futures.wait([done], timeout=self.settle.poll)
             finally:
                 concurrent.futures.wait([done])
-            done.result()  # re-raises RecordingWriteError (disk full)
+            return done.result()
 
     def _theta(self, r: Reading, guess: np.ndarray) -> np.ndarray:
         """Joint encoders where the robot has them, else the model's estimate."""
