@@ -10,16 +10,26 @@ import click
 from pimbs_cli.common import check_output, force_option, progress, user_errors
 
 LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
+DEFAULT_LOSS = "basic+const+pinn"
 
 
 @click.command("train")
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--map", "map_kind", type=click.Choice(["atl", "al"]), default="atl",
               show_default=True, help="atl: (θ, f) → l; al: θ → l")
-@click.option("--loss", type=click.Choice(LOSSES), default="basic+const+pinn",
-              show_default=True)
-@click.option("--alpha", type=click.FloatRange(min=0), default=1e-5, show_default=True,
-              help="weight α of L_pinn (physical units)")
+@click.option("--loss", type=click.Choice(LOSSES), default=DEFAULT_LOSS, show_default=True)
+@click.option("--structure", type=click.Choice(["series-elastic", "mlp"]),
+              default="series-elastic", show_default=True,
+              help="series-elastic: l = g(θ) + e(f) (ATL-Map); mlp: the paper's network")
+@click.option("--alpha", type=click.FloatRange(min=0), default=None,
+              help="fixed weight α of L_pinn in physical units, as in the paper (e.g. 1e-7) "
+                   "[default: automatic, from the residuals' own scales]")
+@click.option("--weighting", type=click.Choice(["auto", "fixed"]), default=None,
+              help="auto: α balanced every epoch by profiled likelihood (with --alpha: a "
+                   "multiplier of it); fixed: --alpha as is [default: auto unless --alpha]")
+@click.option("--prior/--no-prior", default=True, show_default=True,
+              help="start from the robot description's model (the recording's robot or "
+                   "--robot) and learn its correction; skipped with a note if unavailable")
 @click.option("--n-train", type=click.IntRange(min=1), default=None,
               help="train on N rows drawn with --seed; evaluate on the rest (or on --eval)")
 @click.option("--eval", "eval_path", type=click.Path(path_type=Path), default=None,
@@ -29,8 +39,11 @@ LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
               help="seeds the training draw and the initial weights")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
               show_default=True, help="Adam learning rate")
+@click.option("--hidden", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="width of the two hidden layers (the paper's 1000)")
 @click.option("--robot", default=None,
-              help="robot NAME|PATH to compute τ where the recording's tau_gravity is null")
+              help="robot NAME|PATH: the prior, and τ where the recording's tau_gravity is "
+                   "null [default: the recording's robot]")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="directory to write the model (model.safetensors + model.json); "
@@ -43,14 +56,18 @@ LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
               help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
 @force_option()
 @user_errors
-def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: float,
+def command(threads: int | None, data: Path, map_kind: str, loss: str, structure: str,
+            alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
-            robot: str | None, device: str, out: Path | None, json_path: Path | None,
+            hidden: int, robot: str | None, device: str, out: Path | None, json_path: Path | None,
             reference: bool, force: bool) -> None:
-    """Learn h(θ[, f]) → l from DATA (a recording) with the paper's losses.
+    """Learn h(θ[, f]) → l from DATA (a recording).
 
-    The model kept is the one of the epoch with the lowest training L_basic; its L_eval
-    (mean over samples and muscles of squared length error, m², ×1e5) is the result.
+    Default: the series-elastic ATL-Map on top of the robot description's model (when the
+    recording's robot or --robot loads), with the physics terms weighted automatically.
+    `--structure mlp --no-prior --alpha 1e-5` is the paper's method. The model kept is the
+    one of the epoch with the lowest training L_basic; its L_eval (mean over samples and
+    muscles of squared length error, m², ×1e5) is the result.
     """
     # refuse an output that exists or cannot be written before minutes of training
     if out is not None and not (out.is_dir() and not any(out.iterdir())):  # empty dir: ok
@@ -62,23 +79,29 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: fl
 
     from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.io import save_model
-    from pimbs_learn.losses import LossConfig
+    from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
     from pimbs_learn.reference import train_reference
     from pimbs_learn.run import TrainOptions
-    from pimbs_learn.session import prepare_run
+    from pimbs_learn.session import model_error, prepare_run
     from pimbs_learn.train import train
 
     if threads:
         torch.set_num_threads(threads)
     console = Console(stderr=True, soft_wrap=True)  # a log gets whole lines, not wrapped
-    run = prepare_run(data, LossConfig.parse(loss, alpha), atl=map_kind == "atl",
+    weighting = weighting or ("fixed" if alpha is not None else "auto")
+    if alpha is None:
+        alpha = 1.0 if weighting == "auto" else DEFAULT_ALPHA
+    run = prepare_run(data, LossConfig.parse(loss, alpha, weighting), atl=map_kind == "atl",
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot,
+                      structure=structure, prior=prior and not reference,
                       note=lambda s: console.print(f"note: {s}", markup=False))
     torch.manual_seed(seed)
-    options = TrainOptions(epochs=epochs, lr=lr, device=device)
+    options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden)
     trainer = train_reference if reference else train
-    console.print(f"{map_kind.upper()}-Map, {run.loss.name}"
-                  f"{f' (α={alpha:g})' if run.loss.pinn else ''}: {run.train.n_samples} "
+    weight = (f"automatic α ×{alpha:g}" if weighting == "auto" else f"α={alpha:g}")
+    console.print(f"{map_kind.upper()}-Map ({run.structure}"
+                  f"{f', prior {run.prior_robot}' if run.prior_robot else ''}), {run.loss.name}"
+                  f"{f' ({weight})' if run.loss.pinn else ''}: {run.train.n_samples} "
                   f"training / {run.eval.n_samples} evaluation samples, "
                   f"{len(run.train.joints)} joints, {len(run.train.muscles)} muscles")
     if out is None:
@@ -90,10 +113,17 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: fl
     metrics = result.metrics()
     metrics.update(data=str(data), data_sha256=run.train.sha256,
                    eval_data=str(eval_path) if eval_path else None,
-                   trainer="reference" if reference else "fast", device=device)
+                   trainer="reference" if reference else "fast", device=device,
+                   eval_rms_mm=1e3 * (result.eval_loss ** 0.5))
     console.print(f"best epoch {result.best_epoch}/{epochs}: train L_basic "
-                  f"{metrics['train_loss']:.4f}, eval L_eval {metrics['eval_loss']:.4f} "
-                  f"(×1e5 m²) in {result.seconds:.1f} s")
+                  f"{metrics['train_loss']:.4g}, eval L_eval {metrics['eval_loss']:.4g} "
+                  f"(×1e5 m², rms {metrics['eval_rms_mm']:.3f} mm) in {result.seconds:.1f} s")
+    geo = model_error(run)
+    if geo is not None:
+        metrics.update(model_eval_loss=geo["eval_loss"], model_rms_mm=geo["rms_mm"])
+        console.print(f"the robot description's model alone ({run.prior_robot}): L_eval "
+                      f"{geo['eval_loss']:.4g} (rms {geo['rms_mm']:.3f} mm) on the same "
+                      "evaluation samples")
     angles = _joint_angles(result, robot)
     metrics.update(eval_joint_angle_rms_deg=angles.rms_error_deg.tolist(),
                    eval_joint_angle_rms_deg_geometric=None
@@ -108,8 +138,9 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, alpha: fl
     if json_path is not None:
         write_text_atomic(json_path, json.dumps(metrics, indent=2) + "\n")
     click.echo(json.dumps({k: metrics[k] for k in ("eval_loss", "train_loss", "best_epoch",
-                                                   "epochs", "seconds",
-                                                   "eval_joint_angle_rms_deg")}))
+                                                   "epochs", "seconds", "eval_rms_mm",
+                                                   "model_rms_mm", "eval_joint_angle_rms_deg")
+                           if k in metrics}))
 
 
 def _joint_angles(result, robot: str | None):

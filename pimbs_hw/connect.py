@@ -34,6 +34,10 @@ from pimbs_hw.safety import SafetyLimits
 from pimbs_hw.transport import open_transport
 
 SIMULATED_PORTS = ("virtual", "pty", "slcan-pty")
+# Boards answer their limits within milliseconds; simulated ones share this process's CPU with
+# the host (and, behind slcan-pty, an emulated adapter), which on a loaded machine can take
+# over a second to come up although nothing is wrong.
+CONNECT_TIMEOUT_S, SIMULATED_CONNECT_TIMEOUT_S = 1.0, 5.0
 
 
 def is_simulated(port: str) -> bool:
@@ -51,12 +55,14 @@ def mock_link(port: str) -> str:
 def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
              faults: Sequence[str] | str | None = None, effect=None, seed: int = 0,
              speed: float = 1.0, limits: SafetyLimits | None = None,
-             connect_timeout_s: float = 1.0, zero_m=None, mock_options: dict | None = None
+             connect_timeout_s: float | None = None, zero_m=None,
+             mock_options: dict | None = None
              ) -> Iterator[tuple[ArmDriver, MockArm | None]]:
     """Driver for the arm on ``port``; starts the simulated arm for simulated ports.
 
     ``zero_m``: encoder readings at the zero pose (from ``pimbs zero``'s calibration file).
     ``mock_options``: extra ``MockArm`` arguments (e.g. ``encoder_offset_m``).
+    ``connect_timeout_s``: how long the boards have to answer (default: 1 s, 5 s simulated).
     """
     if isinstance(robot, str | Path):
         from pimbs_calibration.description import load_robot
@@ -64,6 +70,9 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         robot = load_robot(robot)
     mock = None
     transport_kwargs = {}
+    if connect_timeout_s is None:
+        connect_timeout_s = (SIMULATED_CONNECT_TIMEOUT_S if is_simulated(port)
+                             else CONNECT_TIMEOUT_S)
     if is_simulated(port):
         if port == "slcan-pty":
             transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait

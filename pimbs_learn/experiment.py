@@ -23,7 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from pimbs_learn.data import Samples, load_samples, split
+from pimbs_learn.graph import MLP, SERIES_ELASTIC
 from pimbs_learn.losses import REPORT_SCALE, LossConfig
+from pimbs_learn.paired import paired_change
 from pimbs_learn.run import Run, TrainOptions, TrainResult
 from pimbs_learn.train import train_runs
 
@@ -33,18 +35,32 @@ PAPER_LOSSES = ("basic", "basic+const", "basic+pinn", "basic+const+pinn")
 
 @dataclass(frozen=True)
 class Method:
-    """One row of a table: a loss and its α."""
+    """One row of a table: a loss, its α (or automatic weighting), structure and prior."""
 
     loss: str
     alpha: float = 1e-5
+    structure: str = MLP
+    weighting: str = "fixed"
+    prior: bool = False
 
     @property
     def label(self) -> str:
         name = "+".join(t.capitalize() if t != "pinn" else "PINN" for t in self.loss.split("+"))
-        return f"{name} (α={self.alpha:g})" if "pinn" in self.loss else name
+        if self.structure == SERIES_ELASTIC:
+            name = "SE " + name
+        if "pinn" in self.loss:
+            name += " (auto α)" if self.weighting == "auto" else f" (α={self.alpha:g})"
+        return name + (" + prior" if self.prior else "")
 
     def config(self) -> LossConfig:
-        return LossConfig.parse(self.loss, self.alpha)
+        return LossConfig.parse(self.loss, self.alpha if self.weighting == "fixed" else 1.0,
+                                self.weighting)
+
+
+# The new default of `pimbs train` (without and with the robot description as prior).
+DEFAULT = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto")
+DEFAULT_PRIOR = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto",
+                       prior=True)
 
 
 @dataclass(frozen=True)
@@ -65,14 +81,15 @@ def paper_tables(quick: bool = False) -> list[TableSpec]:
     paper = tuple(Method(m) for m in PAPER_LOSSES)
     sweep = (Method("basic"), Method("basic+const"), Method("basic+pinn", 1e-5),
              *(Method("basic+const+pinn", a) for a in (1e-5, 1e-6, 1e-7, 1e-8)))
+    atl_new = (DEFAULT, DEFAULT_PRIOR)
     ev = 200 if quick else 1000
     return [
         TableSpec("table1", "Table I: AL-Map, 2-DOF 4-muscle simulation", TWO_LINK, False,
                   (3, 5, 10), paper, 100, ev, 0.0),
         TableSpec("table2", "Table II: ATL-Map, 2-DOF 4-muscle simulation", TWO_LINK, True,
-                  (5, 10, 30), paper, 100, ev, 0.0),
+                  (5, 10, 30), paper + atl_new, 100, ev, 0.0),
         TableSpec("table3", "Table III: ATL-Map, 5-DOF 10-muscle arm (simulated, noisy), "
-                  "α sweep", FIVE_DOF, True, (10, 30), sweep, 496, None, 1.0),
+                  "α sweep", FIVE_DOF, True, (10, 30), sweep + atl_new, 496, None, 1.0),
     ]
 
 
@@ -111,6 +128,10 @@ def table_runs(spec: TableSpec, data_dir: Path, seeds: int,
     train_rec = base.with_name(base.name + f"-{spec.pool}.parquet")
     log(simulate_recording(train_rec, spec.robot, spec.pool, spec.atl, 0, spec.noise))
     pool = load_samples(train_rec)
+    prior = None
+    if any(m.prior for m in spec.methods):
+        from pimbs_learn.prior import load_prior
+        prior = load_prior(spec.robot, pool.joints, pool.muscles)
     ev: Samples | None = None
     if spec.eval_samples:
         eval_rec = base.with_name(base.name + f"-eval-{spec.eval_samples}.parquet")
@@ -122,7 +143,9 @@ def table_runs(spec: TableSpec, data_dir: Path, seeds: int,
         for seed in range(seeds):
             tr, rest = split(pool, n, seed)
             for method in spec.methods:
-                run = Run(tr, ev if ev is not None else rest, method.config(), seed, spec.atl)
+                run = Run(tr, ev if ev is not None else rest, method.config(), seed, spec.atl,
+                          method.structure, prior if method.prior else None,
+                          spec.robot if method.prior else None)
                 groups.setdefault(n, []).append((method, run))
     return groups
 
@@ -138,7 +161,10 @@ def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
     """
     results: dict[tuple[str, int], list[TrainResult]] = {}
     for n, items in groups.items():
-        batches = [items] if stack else [[it] for it in items]
+        kinds: dict[str, list[tuple[Method, Run]]] = {}  # one structure per stack
+        for it in items:
+            kinds.setdefault(it[0].structure, []).append(it)
+        batches = list(kinds.values()) if stack else [[it] for it in items]
         for batch in batches:
             done = 0
 
@@ -173,15 +199,36 @@ def table_cells(t: TableResult) -> list[tuple[str, list[tuple[str, bool]]]]:
     return rows
 
 
+def change_cells(t: TableResult) -> list[tuple[str, list[str]]]:
+    """Rows (method label, [paired change of L_eval vs Basic, 95 % CI]) for every method but
+    Basic: the same training samples and seeds, so the draw-to-draw spread cancels."""
+    labels = list(dict.fromkeys(m.label for m in t.spec.methods))
+    base = labels[0]
+    rows = []
+    for lab in labels[1:]:
+        cells = []
+        for n in t.spec.n_train:
+            b = [r.eval_loss for r in t.results[(base, n)]]
+            o = [r.eval_loss for r in t.results[(lab, n)]]
+            cells.append(paired_change(np.array(b), np.array(o)).text() if len(b) > 1
+                         else "–")
+        rows.append((lab, cells))
+    return rows
+
+
 def table_markdown(t: TableResult) -> str:
-    """Mean ± std of L_eval^best ×1e5 per method and N_train; best mean in bold."""
+    """Mean ± std of L_eval^best ×1e5 per method and N_train (best mean in bold), then the
+    paired change against Basic with its 95 % interval."""
     ns = t.spec.n_train
-    lines = [f"### {t.spec.title}", "",
-             "| Method | " + " | ".join(f"N_train={n}" for n in ns) + " |",
-             "|---|" + "---:|" * len(ns)]
+    head = "| Method | " + " | ".join(f"N_train={n}" for n in ns) + " |"
+    lines = [f"### {t.spec.title}", "", head, "|---|" + "---:|" * len(ns)]
     for lab, cells in table_cells(t):
         lines.append(f"| {lab} | " + " | ".join(f"**{c}**" if b else c for c, b in cells)
                      + " |")
+    lines += ["", f"Change of L_eval against {t.spec.methods[0].label} on the same samples "
+              "(geometric mean over seeds, 95 % CI):", "", head, "|---|" + "---:|" * len(ns)]
+    for lab, cells in change_cells(t):
+        lines.append(f"| {lab} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -190,10 +237,17 @@ def results_json(tables: list[TableResult], options: TrainOptions, seeds: int) -
                  "loss_scale": REPORT_SCALE, "tables": {}}
     for t in tables:
         rows = []
+        base = t.spec.methods[0].label
         for (label, n), res in t.results.items():
             mean, std = t.cell(label, n)
-            rows.append({"method": label, "n_train": n, "mean": mean, "std": std,
-                         "runs": [r.metrics() for r in res]})
+            row = {"method": label, "n_train": n, "mean": mean, "std": std,
+                   "runs": [r.metrics() for r in res]}
+            b = np.array([r.eval_loss for r in t.results[(base, n)]])
+            if label != base and len(b) > 1:
+                c = paired_change(b, np.array([r.eval_loss for r in res]))
+                row["change_vs_basic"] = {"ratio": c.ratio, "ci95": [c.low, c.high],
+                                          "mean_ratio": c.mean_ratio}
+            rows.append(row)
         out["tables"][t.spec.key] = {"title": t.spec.title, "rows": rows}
     return out
 

@@ -19,15 +19,10 @@ from safetensors.numpy import load_file, save
 from pimbs_calibration.atomic import write_bytes_atomic, write_text_atomic
 from pimbs_learn.data import LearnError
 from pimbs_learn.domain import Domain
-from pimbs_learn.model import (
-    PARAM_NAMES,
-    Params,
-    Scaling,
-    hidden_layers,
-    jacobian,
-    network_inputs,
-    output_length,
-)
+from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES, SchemaGraph
+from pimbs_learn.model import PARAM_NAMES, Params, Scaling
+from pimbs_learn.prior import KEYS as PRIOR_KEYS
+from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import TrainResult
 
 WEIGHTS, META = "model.safetensors", "model.json"
@@ -44,6 +39,10 @@ def model_meta(result: TrainResult) -> dict[str, Any]:
         "robot": run.train.robot, "joints": list(run.train.joints),
         "muscles": list(run.train.muscles), "map": run.map_name,
         "inputs": "theta" if not run.atl else "theta+tension",
+        "structure": run.structure,
+        "prior": ({"kind": "geometric", "robot": run.prior_robot,
+                   "rule": "length = h_geom(theta) + learned; G = G_geom + learned"}
+                  if run.prior is not None else None),
         "architecture": {"layers": [int(w["w1"].shape[1]), int(w["w1"].shape[0]),
                                     int(w["w2"].shape[0]), int(w["w3"].shape[0])],
                          "activation": "tanh after layers 1 and 2"},
@@ -64,25 +63,36 @@ def save_model(result: TrainResult, out_dir: str | Path, extra: dict[str, Any] |
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     # each file whole or not at all: a full disk must not leave a truncated model
-    write_bytes_atomic(d / WEIGHTS, save({k: np.ascontiguousarray(result.params[k],
-                                                                  dtype=np.float32)
-                                          for k in PARAM_NAMES}))
+    write_bytes_atomic(d / WEIGHTS, save({k: _stored(k, v) for k, v in result.params.items()}))
     meta = {**model_meta(result), **(extra or {})}
     write_text_atomic(d / META, json.dumps(meta, indent=2) + "\n")
     return d
 
 
+def _stored(name: str, v: np.ndarray) -> np.ndarray:
+    """Network weights as float32; the geometric prior's constants exactly (float64, int64)."""
+    if name.startswith(PRIOR_PREFIX):
+        return np.ascontiguousarray(v, dtype=np.int64 if v.dtype.kind in "iu" else np.float64)
+    return np.ascontiguousarray(v, dtype=np.float32)
+
+
+def _tensor(v: np.ndarray) -> torch.Tensor:
+    """float64 for arithmetic, int64 for the prior's index arrays."""
+    return torch.from_numpy(np.ascontiguousarray(
+        v, dtype=np.int64 if v.dtype.kind in "iu" else np.float64))
+
+
 def schema_from_result(result: TrainResult) -> BodySchema:
     """The in-memory model of a training result (as if saved and loaded)."""
-    params = {k: torch.from_numpy(result.params[k].astype(np.float64)) for k in PARAM_NAMES}
-    return BodySchema(params, model_meta(result))
+    return BodySchema({k: _tensor(v) for k, v in result.params.items()}, model_meta(result))
 
 
 class BodySchema:
     """A loaded body schema: batched numpy in, numpy out (float64), physical units.
 
     theta (N,) or (B, N) rad; f (M,) or (B, M) N — required for an ATL-Map, ignored by an
-    AL-Map's length/jacobian (but needed by ``torque``).
+    AL-Map's length/jacobian (but needed by ``torque``). Evaluates through
+    :class:`~pimbs_learn.graph.SchemaGraph`, the same arithmetic that is exported.
     """
 
     def __init__(self, params: Params, meta: dict[str, Any]) -> None:
@@ -90,11 +100,10 @@ class BodySchema:
         self.joints: list[str] = list(meta["joints"])
         self.muscles: list[str] = list(meta["muscles"])
         self.atl: bool = meta["map"] == "atl"
+        self.structure: str = meta.get("structure", MLP)
         self.scaling = Scaling.from_json(meta["scaling"])
         self.domain = Domain.from_meta(meta)  # training ranges: where it is not extrapolating
-        self._p = params
-        self._inv = torch.tensor(self.scaling.input_inverse(), dtype=torch.float64)
-        self._ls = torch.tensor(self.scaling.length, dtype=torch.float64)
+        self.graph = SchemaGraph(params, meta).eval()
 
     @property
     def n_joints(self) -> int:
@@ -104,35 +113,34 @@ class BodySchema:
     def n_muscles(self) -> int:
         return len(self.muscles)
 
-    def _hidden(self, theta: Any, f: Any) -> tuple[torch.Tensor, ...] | Any:
+    def _evaluate(self, theta: Any, f: Any) -> tuple[bool, np.ndarray, np.ndarray]:
         th = np.asarray(theta, dtype=np.float64)
         single = th.ndim == 1
         th = np.atleast_2d(th)
         if th.shape[-1] != self.n_joints or th.ndim != 2:
             raise LearnError(f"theta must have shape (N,) or (B, N) with N = {self.n_joints}, "
                              f"got {np.shape(theta)}")
-        ft = None
-        if self.atl:
-            if f is None:
+        if f is None:
+            if self.atl:
                 raise LearnError("this is an ATL-Map body schema: pass the tensions f too")
+            ft = np.zeros((th.shape[0], self.n_muscles))
+        else:
             ft = np.atleast_2d(np.asarray(f, dtype=np.float64))
             if ft.shape != (th.shape[0], self.n_muscles):
                 raise LearnError(f"f must have shape (M,) or (B, M) with M = {self.n_muscles} "
                                  f"and the same B as theta, got {np.shape(f)}")
-        x = network_inputs(torch.from_numpy(th), None if ft is None else torch.from_numpy(ft),
-                           self._inv)
-        return single, *hidden_layers(self._p, x)
+        with torch.no_grad():
+            length, g = self.graph(torch.from_numpy(th), torch.from_numpy(ft))
+        return single, length.numpy(), g.numpy()
 
     def length(self, theta: Any, f: Any = None) -> np.ndarray:
         """Predicted muscle lengths l = h(θ[, f]), (M,) or (B, M), m."""
-        single, _, a2 = self._hidden(theta, f)
-        out = output_length(self._p, a2, self._ls).numpy()
+        single, out, _ = self._evaluate(theta, f)
         return out[0] if single else out
 
     def jacobian(self, theta: Any, f: Any = None) -> np.ndarray:
         """Muscle Jacobian G = ∂h/∂θ, (M, N) or (B, M, N), m/rad."""
-        single, a1, a2 = self._hidden(theta, f)
-        g = jacobian(self._p, a1, a2, self._ls, self._inv[:self.n_joints]).numpy()
+        single, _, g = self._evaluate(theta, f)
         return g[0] if single else g
 
     def torque(self, theta: Any, f: Any) -> np.ndarray:
@@ -159,11 +167,19 @@ def load_body_schema(model_dir: str | Path) -> BodySchema:
         arrays = load_file(str(d / WEIGHTS))
     except Exception as e:  # safetensors raises its own error types for corrupt files
         raise LearnError(f"{d / WEIGHTS}: cannot read weights ({e})") from e
-    missing = [k for k in PARAM_NAMES if k not in arrays]
+    structure = meta.get("structure", MLP)  # files before the structure field: the MLP
+    if structure not in STRUCTURES:
+        raise LearnError(f"{d / META}: unknown structure {structure!r} (this PIMBS reads "
+                         f"{', '.join(STRUCTURES)}); update PIMBS")
+    names = PARAM_NAMES + (("c",) if structure == SERIES_ELASTIC else ())
+    if meta.get("prior"):
+        names += tuple(PRIOR_PREFIX + k for k in PRIOR_KEYS)
+    missing = [k for k in names if k not in arrays]
     if missing:
         raise LearnError(f"{d / WEIGHTS}: missing tensors {missing}")
-    params = {k: torch.from_numpy(arrays[k].astype(np.float64)) for k in PARAM_NAMES}
-    n_in = len(meta["joints"]) + (len(meta["muscles"]) if meta["map"] == "atl" else 0)
+    params = {k: _tensor(arrays[k]) for k in names}
+    atl_inputs = meta["map"] == "atl" and structure == MLP
+    n_in = len(meta["joints"]) + (len(meta["muscles"]) if atl_inputs else 0)
     if params["w1"].shape[1] != n_in or params["w3"].shape[0] != len(meta["muscles"]):
         raise LearnError(f"{d}: weight shapes do not match the joints/muscles in {META}")
     return BodySchema(params, meta)

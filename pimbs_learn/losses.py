@@ -19,6 +19,7 @@ import torch
 REPORT_SCALE = 1e5
 LOSS_NAMES = ("basic", "basic+const", "basic+pinn", "basic+const+pinn")
 DEFAULT_ALPHA = 1e-5
+WEIGHTINGS = ("fixed", "auto")
 
 
 @dataclass(frozen=True)
@@ -28,9 +29,14 @@ class LossConfig:
     const: bool = True
     pinn: bool = True
     alpha: float = DEFAULT_ALPHA
+    # "fixed": L_train = L_basic + L_const + α·L_pinn (the paper). "auto": α is set every
+    # epoch from the residuals themselves (see pimbs_learn.objective.auto_pinn_weight), and
+    # ``alpha`` multiplies that (1 = the likelihood balance).
+    weighting: str = "fixed"
 
     @classmethod
-    def parse(cls, name: str, alpha: float = DEFAULT_ALPHA) -> LossConfig:
+    def parse(cls, name: str, alpha: float = DEFAULT_ALPHA,
+              weighting: str = "fixed") -> LossConfig:
         """'basic', 'basic+const', 'basic+pinn' or 'basic+const+pinn' (order-free)."""
         terms = [t.strip().lower() for t in name.split("+") if t.strip()]
         bad = sorted(set(terms) - {"basic", "const", "pinn"})
@@ -38,7 +44,10 @@ class LossConfig:
             raise ValueError(f"loss '{name}' is not one of: {', '.join(LOSS_NAMES)}")
         if alpha < 0:
             raise ValueError(f"alpha must be ≥ 0, got {alpha}")
-        return cls(const="const" in terms, pinn="pinn" in terms, alpha=float(alpha))
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting '{weighting}' is not one of: {', '.join(WEIGHTINGS)}")
+        return cls(const="const" in terms, pinn="pinn" in terms, alpha=float(alpha),
+                   weighting=weighting)
 
     @property
     def name(self) -> str:

@@ -6,7 +6,16 @@ matmuls: no autograd graph, no double backward, and the two W2 weight-gradient p
 (from L_basic and from L_pinn) fused into one matmul. Tests check it against autograd.
 
 Shapes: R stacked runs, B training rows (+1 all-zero row for h(0, 0)), D inputs, H hidden,
-M muscles, N joints.
+M muscles, N joints, K elastic basis functions.
+
+Automatic physics weight (``auto``): the residuals of lengths and torques are treated as
+Gaussian with unknown variances, profiled out. The negative log-likelihood per sample is
+(M/2)·log mse_l + (N/2)·log mse_τ; its gradient, rescaled by mse_l (Adam does not see a
+common scale), is ∇mse_l + α_eff·∇mse_τ with α_eff = (N/M)·mse_l/mse_τ. Each variance has
+a floor relative to the data's own scale, so α_eff is dimensionless in use, needs no unit
+choice, and falls by itself when the torque balance cannot be met (friction, offsets):
+the torque residual then stays large. α_eff is recomputed every epoch and held constant
+within it (iteratively re-weighted least squares).
 """
 
 from __future__ import annotations
@@ -31,7 +40,11 @@ class Batch:
     length_scale: torch.Tensor  # (R, 1, M)
     theta_inverse: torch.Tensor  # (R, 1, N)
     const_weight: torch.Tensor  # (R,) 0 or 1
-    pinn_weight: torch.Tensor  # (R,) α, or 0 without L_pinn
+    pinn_weight: torch.Tensor  # (R,) α, or 0 without L_pinn (auto: multiplier of α_eff)
+    phi: torch.Tensor | None = None  # (R, B+1, K, M) elastic basis (series-elastic), row B 0
+    auto: torch.Tensor | None = None  # (R,) 1 where α is automatic
+    length_floor: torch.Tensor | None = None  # (R,) m², floor of mse_l (auto)
+    torque_floor: torch.Tensor | None = None  # (R,) N²·m², floor of mse_τ (auto)
 
     # cached: on a GPU each evaluation would be a host sync, once per epoch
     @cached_property
@@ -42,23 +55,79 @@ class Batch:
     def use_pinn(self) -> bool:
         return bool((self.pinn_weight != 0).any())
 
+    @cached_property
+    def use_auto(self) -> bool:
+        return self.auto is not None and bool((self.auto != 0).any())
+
+
+# The trainer holds the elastic coefficients as c / ELASTIC_GAIN: Adam moves every
+# parameter by about lr per epoch, and a coefficient of order 0.1–1 must settle within tens
+# of epochs, before the network's bias b3 and curvature absorb the spring's share of the
+# lengths. Saved models hold c itself.
+ELASTIC_GAIN = 30.0
+
+
+def elastic_length(p: Params, phi: torch.Tensor | None, ls: torch.Tensor) -> torch.Tensor | float:
+    """e(f) = l_s·Σ_k c_k φ_k(f), (R, B+1, M), or 0 without the series-elastic term."""
+    if phi is None:
+        return 0.0
+    return (phi * (ELASTIC_GAIN * p["c"]).unsqueeze(-3)).sum(dim=-2) * ls
+
+
+def predicted_length(p: Params, a2: torch.Tensor, batch: Batch) -> torch.Tensor:
+    return output_length(p, a2, batch.length_scale) + elastic_length(p, batch.phi,
+                                                                     batch.length_scale)
+
+
+def pinn_weight(batch: Batch, lb: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
+    """(R,) weight of mse_τ this epoch: α (fixed) or α·(N/M)·max(mse_l, floor)/max(mse_τ, floor)."""
+    if not batch.use_auto:
+        return batch.pinn_weight
+    assert batch.auto is not None and batch.length_floor is not None
+    assert batch.torque_floor is not None
+    m, n = batch.length.shape[-1], batch.tau.shape[-1]
+    mse_t = (residual * residual).mean(dim=(-2, -1))
+    ratio = (n / m) * torch.maximum(lb, batch.length_floor) / torch.maximum(
+        mse_t, batch.torque_floor)
+    return batch.pinn_weight * torch.where(batch.auto != 0, ratio, torch.ones_like(ratio))
+
 
 def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     """(L_train, L_basic), each (R,): the definition the hand-written gradient must match."""
     b = batch.length.shape[1]
     a1, a2 = hidden_layers(p, batch.x)
-    l_pred = output_length(p, a2, batch.length_scale)
+    l_pred = predicted_length(p, a2, batch)
     lb = basic_loss(l_pred[:, :b], batch.length)
     total = lb + batch.const_weight * const_loss(l_pred[:, b])
     if batch.use_pinn:
         g = gtf(p, a1[:, :b], a2[:, :b], batch.tension, batch.length_scale,
                 batch.theta_inverse)
-        total = total + batch.pinn_weight * pinn_loss(g, batch.tau)
+        w = pinn_weight(batch, lb, g + batch.tau).detach()
+        total = total + w * pinn_loss(g, batch.tau)
     return total, lb
 
 
-def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
-    """L_basic (R,) and ∂(Σ_runs L_train)/∂p, by reverse-mode written out by hand.
+def selection_score(batch: Batch, lb: torch.Tensor, residual: torch.Tensor | None
+                    ) -> torch.Tensor:
+    """(R,) what the selection rule minimises: L_basic (the paper's rule), or with the
+    automatic weight the profiled negative log-likelihood per length observation,
+    log max(mse_l, floor) + (N/M)·log max(mse_τ, floor) — the quantity that weight descends,
+    so the epoch kept is the one that best explains lengths *and* torques."""
+    if not batch.use_auto or residual is None:
+        return lb
+    assert batch.auto is not None and batch.length_floor is not None
+    assert batch.torque_floor is not None
+    m, n = batch.length.shape[-1], batch.tau.shape[-1]
+    mse_t = (residual * residual).mean(dim=(-2, -1))
+    nll = torch.log(torch.maximum(lb, batch.length_floor)) + (n / m) * torch.log(
+        torch.maximum(mse_t, batch.torque_floor))
+    return torch.where(batch.auto != 0, nll, lb)
+
+
+def objective_and_grads(p: Params, batch: Batch
+                        ) -> tuple[torch.Tensor, Params, torch.Tensor]:
+    """L_basic (R,), ∂(Σ_runs L_train)/∂p by reverse mode written out by hand, and the
+    selection score (R,) of these weights (:func:`selection_score`).
 
     Forward: z1 = x W1ᵀ+b1, a1 = tanh z1, z2 = a1 W2ᵀ+b2, a2 = tanh z2, l = (a2 W3ᵀ+b3)·l_s.
     PINN branch (rows < B): v = f·l_s, q2 = (v W3)·s2, q1 = (q2 W2)·s1, g = (q1 W1θ)·θ_inv,
@@ -70,7 +139,7 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
     n = batch.theta_inverse.shape[-1]
     a1, a2 = hidden_layers(p, x)
     s1, s2 = 1 - a1 * a1, 1 - a2 * a2
-    l_pred = output_length(p, a2, ls)
+    l_pred = predicted_length(p, a2, batch)
 
     err = l_pred[:, :b] - batch.length
     lb = (err * err).mean(dim=(-2, -1))
@@ -81,6 +150,7 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
     da2 = do @ w3
     g_w3 = do.mT @ a2
 
+    res = None
     if batch.use_pinn:
         v = batch.tension * ls
         p2 = v @ w3
@@ -88,7 +158,8 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
         p1 = q2 @ w2
         q1 = p1 * s1[:, :b]
         g = (q1 @ w1[..., :n]) * batch.theta_inverse
-        dg = (g + batch.tau) * (batch.pinn_weight.view(r, 1, 1) * (2.0 / (b * n)))
+        res = g + batch.tau
+        dg = res * (pinn_weight(batch, lb, res).view(r, 1, 1) * (2.0 / (b * n)))
         dgs = dg * batch.theta_inverse
         dq1 = dgs @ w1[..., :n].mT
         dp1 = dq1 * s1[:, :b]
@@ -112,4 +183,6 @@ def objective_and_grads(p: Params, batch: Batch) -> tuple[torch.Tensor, Params]:
     grads = {"w1": g_w1, "b1": dz1.sum(dim=1, keepdim=True), "w2": g_w2,
              "b2": dz2.sum(dim=1, keepdim=True), "w3": g_w3,
              "b3": do.sum(dim=1, keepdim=True)}
-    return lb, grads
+    if batch.phi is not None:
+        grads["c"] = ELASTIC_GAIN * (do.unsqueeze(-2) * batch.phi).sum(dim=1)
+    return lb, grads, selection_score(batch, lb, res)

@@ -13,6 +13,7 @@ import time
 import numpy as np
 import torch
 
+from pimbs_learn.data import LearnError
 from pimbs_learn.losses import basic_loss, const_loss, pinn_loss
 from pimbs_learn.model import BodySchemaNet, init_params
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
@@ -30,6 +31,9 @@ def train_reference(run: Run, options: TrainOptions | None = None,
                     ) -> TrainResult:
     """Train one run the straightforward way; returns the same TrainResult as the fast one."""
     run.check()
+    if run.structure != "mlp" or run.loss.weighting != "fixed":
+        raise LearnError("the reference trainer implements the paper's method only (MLP "
+                         "structure, fixed α); use the fast trainer")
     options = options or TrainOptions()
     dev, dt = options.torch_device(), options.dtype
     t0 = time.perf_counter()

@@ -3,7 +3,9 @@
 Shared by the fast trainer and the reference so that both consume and report exactly the
 same things, and the benchmark can compare them field by field.
 
-Selection rule (paper): the model kept is the one of the epoch with the lowest *training*
+Selection rule (paper; with the automatic physics weight the profiled likelihood of lengths
+and torques replaces L_basic, see ``objective.selection_score``): the model kept is the one
+of the epoch with the lowest *training*
 L_basic (first such epoch on ties); its L_eval is the reported ``eval_loss``. "Epoch e" means
 the weights before the e-th optimiser step, i.e. the weights that produced that epoch's loss.
 """
@@ -11,13 +13,14 @@ the weights before the e-th optimiser step, i.e. the weights that produced that 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import torch
 
 from pimbs_learn.data import LearnError, Samples
+from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES
 from pimbs_learn.losses import REPORT_SCALE, LossConfig
 from pimbs_learn.model import HIDDEN, Scaling
 
@@ -33,10 +36,20 @@ class Run:
     loss: LossConfig = LossConfig()
     seed: int = 0
     atl: bool = True
+    structure: str = MLP  # see pimbs_learn.graph
+    # constants of the geometric model (pimbs_learn.prior) when it is the prior:
+    # l = h_geom(θ) + learned correction; None: no prior
+    prior: dict[str, np.ndarray] | None = field(default=None, compare=False)
+    prior_robot: str | None = None
 
     @property
     def map_name(self) -> str:
         return "atl" if self.atl else "al"
+
+    @property
+    def network_inputs_tension(self) -> bool:
+        """Does the MLP itself take f (the paper's ATL-Map), or only θ?"""
+        return self.atl and self.structure == MLP
 
     def check(self) -> None:
         """Refuse runs that cannot train meaningfully, before spending any time."""
@@ -44,8 +57,30 @@ class Run:
             raise LearnError("training and evaluation sets must each hold at least one sample")
         if self.train.joints != self.eval.joints or self.train.muscles != self.eval.muscles:
             raise LearnError("training and evaluation samples come from different bodies")
+        if self.structure not in STRUCTURES:
+            raise LearnError(f"unknown structure {self.structure!r}: one of {STRUCTURES}")
+        if self.structure == SERIES_ELASTIC and not self.atl:
+            raise LearnError("the series-elastic structure is an ATL-Map (it needs tension)")
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
+
+    def residual(self) -> Run:
+        """The run the network learns: with a prior, lengths minus the model's and τ plus
+        G_geomᵀf (so −(G_geom + ∂r/∂θ)ᵀf = τ is −(∂r/∂θ)ᵀf = τ + G_geomᵀf); else itself."""
+        if self.prior is None:
+            return self
+        from pimbs_learn.prior import GeometricPrior
+
+        geo = GeometricPrior.from_numpy(self.prior)
+
+        def minus_prior(s: Samples) -> Samples:
+            with torch.no_grad():
+                h, g = (t.numpy() for t in geo(torch.from_numpy(s.theta),
+                                                torch.from_numpy(s.tension)))
+            return replace(s, length=s.length - h,
+                           tau=s.tau + np.einsum("bmn,bm->bn", g, s.tension))
+
+        return replace(self, train=minus_prior(self.train), eval=minus_prior(self.eval))
 
     def scaling(self) -> Scaling:
         t = self.train
@@ -101,6 +136,9 @@ class TrainResult:
             "n_eval": self.run.eval.n_samples,
             "loss": self.run.loss.name,
             "alpha": self.run.loss.alpha,
+            "weighting": self.run.loss.weighting,
+            "structure": self.run.structure,
+            "prior": self.run.prior_robot,
             "map": self.run.map_name,
             "seed": self.run.seed,
         }

@@ -19,24 +19,30 @@ from pimbs_learn.data import (
     load_samples,
     split,
 )
-from pimbs_learn.losses import LossConfig
+from pimbs_learn.graph import MLP
+from pimbs_learn.losses import REPORT_SCALE, LossConfig
+from pimbs_learn.prior import PriorUnavailable, load_prior
 from pimbs_learn.run import Run
 
 
 def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
                 n_train: int | None = None, eval_path: str | Path | None = None,
-                seed: int = 0, robot: str | None = None,
-                note: Callable[[str], None] | None = None) -> Run:
+                seed: int = 0, robot: str | None = None, structure: str = MLP,
+                prior: bool = False, note: Callable[[str], None] | None = None) -> Run:
     """Build the run `pimbs train` asked for.
 
     With --eval the model is evaluated on that recording (trained on all of DATA, or on
     n_train rows of it); without, n_train rows are drawn (seeded) and the rest evaluates.
     A ``robot`` is always checked against DATA; ``note`` hears when it is not needed.
+    With ``prior`` the robot description (``robot``, else the recording's robot) is the
+    prior when it loads and matches; otherwise training goes on without one and ``note``
+    hears why.
     """
     samples = load_samples(data)
     if robot is not None:
         load_robot(robot, samples)
-        if note is not None and not (loss.pinn and not np.isfinite(samples.tau).all()):
+        used = (prior and atl) or (loss.pinn and not np.isfinite(samples.tau).all())
+        if note is not None and not used:
             why = ("DATA has tau_gravity in every row" if loss.pinn
                    else f"the {loss.name} loss needs no gravity torque")
             note(f"--robot {robot} matches {samples.path} but is not used: {why}")
@@ -59,9 +65,38 @@ def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
     _check_tension(tr, atl, loss)
     if loss.pinn:
         tr = fill_gravity(tr, robot)
-    run = Run(tr, ev, loss, seed=seed, atl=atl)
+    arrays, name = None, None
+    if prior and atl:
+        name = robot or tr.robot
+        try:
+            if not name:
+                raise PriorUnavailable("the recording names no robot (give --robot)")
+            arrays = load_prior(name, tr.joints, tr.muscles)
+        except PriorUnavailable as e:
+            name = None
+            if note is not None:
+                note(f"no geometric prior: {e}")
+    run = Run(tr, ev, loss, seed=seed, atl=atl, structure=structure if atl else MLP,
+              prior=arrays, prior_robot=name)
     run.check()
     return run
+
+
+def model_error(run: Run) -> dict[str, float] | None:
+    """The prior's own error on the evaluation samples (l_model = h_geom − log1p(f)/K):
+    L_eval ×1e5 and rms in mm, or None without a prior."""
+    if run.prior is None:
+        return None
+    import torch
+
+    from pimbs_learn.prior import GeometricPrior
+
+    ev = run.eval
+    with torch.no_grad():
+        h, _ = GeometricPrior.from_numpy(run.prior)(torch.from_numpy(ev.theta),
+                                                    torch.from_numpy(ev.tension))
+    mse = float(((h.numpy() - ev.length) ** 2).mean())
+    return {"eval_loss": mse * REPORT_SCALE, "rms_mm": 1e3 * mse ** 0.5}
 
 
 def _check_tension(tr: Samples, atl: bool, loss: LossConfig) -> None:

@@ -22,11 +22,18 @@ import numpy as np
 import torch
 
 from pimbs_learn.data import LearnError
+from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
-from pimbs_learn.objective import Batch, objective_and_grads
+from pimbs_learn.objective import ELASTIC_GAIN, Batch, elastic_length, objective_and_grads
+from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
 
 _EVAL_CHUNK = 2048  # eval rows per matmul; bounds memory for large evaluation sets
+# Floors of the profiled variances (automatic physics weight), relative to the training
+# data's own scales: rms length error ≥ LENGTH_FLOOR·max|l|, rms torque error ≥
+# TORQUE_FLOOR·max|τ|. They only matter once both residuals are that small.
+LENGTH_FLOOR = 1e-4
+TORQUE_FLOOR = 1e-3
 
 
 def make_adam(params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
@@ -47,20 +54,24 @@ def _check_stackable(runs: list[Run]) -> None:
     first = runs[0]
     for r in runs:
         r.check()
-        if (r.train.n_samples, r.eval.n_samples, r.atl, r.train.joints, r.train.muscles) != (
+        if (r.train.n_samples, r.eval.n_samples, r.atl, r.train.joints, r.train.muscles,
+                r.structure) != (
                 first.train.n_samples, first.eval.n_samples, first.atl, first.train.joints,
-                first.train.muscles):
+                first.train.muscles, first.structure):
             raise LearnError("runs trained together need the same n_train, n_eval, map, "
-                             "joints and muscles; train the others in a separate batch")
+                             "structure, joints and muscles; train the others in a separate "
+                             "batch")
 
 
-def _eval_loss(p: Params, x: torch.Tensor, l_data: torch.Tensor,
+def _eval_loss(p: Params, x: torch.Tensor, phi: torch.Tensor | None, l_data: torch.Tensor,
                ls: torch.Tensor) -> torch.Tensor:
     """L_eval per run, evaluated in row chunks (the sum of chunk SSEs / rows · muscles)."""
     sse = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for i in range(0, x.shape[1], _EVAL_CHUNK):
         _, a2 = hidden_layers(p, x[:, i:i + _EVAL_CHUNK])
-        d = output_length(p, a2, ls) - l_data[:, i:i + _EVAL_CHUNK]
+        ph = None if phi is None else phi[:, i:i + _EVAL_CHUNK]
+        d = (output_length(p, a2, ls) + elastic_length(p, ph, ls)
+             - l_data[:, i:i + _EVAL_CHUNK])
         sse += (d * d).sum(dim=(-2, -1))
     return sse / (l_data.shape[1] * l_data.shape[2])
 
@@ -86,6 +97,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                ) -> list[TrainResult]:
     """Train all runs together; each gets its own init (its seed), data, loss and α."""
     _check_stackable(runs)
+    given, runs = runs, [r.residual() for r in runs]
     options = options or TrainOptions()
     dev, dt = options.torch_device(), options.dtype
     t0 = time.perf_counter()
@@ -93,7 +105,11 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     n = runs[0].train.theta.shape[1]
     scalings = [r.scaling() for r in runs]
 
+    elastic = runs[0].structure == SERIES_ELASTIC
+    with_f = runs[0].network_inputs_tension
     inv = _stack([s.input_inverse()[None] for s in scalings], dt, dev)  # (R,1,D)
+    if not with_f:
+        inv = inv[..., :n]
     ls = _stack([s.length[None] for s in scalings], dt, dev)  # (R,1,M)
     th_inv = inv[..., :n]
 
@@ -101,10 +117,20 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         xs = []
         for r in runs:
             s = getattr(r, samples_of)
-            xs.append(np.hstack([s.theta, s.tension]) if r.atl else s.theta)
+            xs.append(np.hstack([s.theta, s.tension]) if with_f else s.theta)
         return _stack(xs, dt, dev) * inv
 
+    def basis(samples_of: str) -> torch.Tensor | None:
+        if not elastic:
+            return None
+        f = _stack([getattr(r, samples_of).tension for r in runs], dt, dev)
+        fs = _stack([s.tension[None] for s in scalings], dt, dev)  # type: ignore[index]
+        return elastic_basis(f, fs)
+
     x_tr = inputs("train")
+    phi_tr = basis("train")
+    auto = torch.tensor([r.loss.pinn and r.loss.weighting == "auto" for r in runs],
+                        dtype=dt, device=dev)
     batch = Batch(
         x=torch.cat([x_tr, torch.zeros_like(x_tr[:, :1])], dim=1),  # row B: h(0, 0)
         length=_stack([r.train.length for r in runs], dt, dev),
@@ -112,17 +138,32 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         tau=_stack([np.nan_to_num(r.train.tau) for r in runs], dt, dev),
         length_scale=ls, theta_inverse=th_inv,
         const_weight=torch.tensor([r.loss.const_weight for r in runs], dtype=dt, device=dev),
-        pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev))
+        pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev),
+        phi=None if phi_tr is None else torch.cat([phi_tr, torch.zeros_like(phi_tr[:, :1])],
+                                                  dim=1),
+        auto=auto,
+        length_floor=torch.tensor([(LENGTH_FLOOR * float(np.abs(r.train.length).max())) ** 2
+                                   for r in runs], dtype=dt, device=dev),
+        torque_floor=torch.tensor([(TORQUE_FLOOR * float(np.nan_to_num(
+            np.abs(r.train.tau)).max() + 1e-12)) ** 2 for r in runs], dtype=dt, device=dev))
     x_ev = inputs("eval")
+    phi_ev = basis("eval")
     l_ev = _stack([r.eval.length for r in runs], dt, dev)
 
-    inits = [init_params(x_tr.shape[-1], batch.length.shape[-1], r.seed, options.hidden, dt)
-             for r in runs]
+    m = batch.length.shape[-1]
+    inits = [init_params(x_tr.shape[-1], m, r.seed, options.hidden, dt) for r in runs]
+    for r, i in zip(runs, inits, strict=True):
+        if elastic:  # linear in c: starting at zero breaks no symmetry
+            i["c"] = torch.zeros(len(ELASTIC_BASIS), m, dtype=dt)
+        if r.prior is not None:  # start exactly at the geometric model
+            i["w3"].zero_()
+            i["b3"].zero_()
     p: Params = {k: torch.stack([i[k] for i in inits]).to(dev).requires_grad_(True)
                  for k in inits[0]}
     opt = make_adam(list(p.values()), options.lr)
     best_p = {k: v.detach().clone() for k, v in p.items()}
-    best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)
+    best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)  # selection score
+    best_lb = torch.full((r_n,), float("inf"), dtype=dt, device=dev)
     best_epoch = torch.zeros(r_n, dtype=torch.long, device=dev)
     on_host = dev.type == "cpu"
     curve_e: list[int] = []
@@ -131,16 +172,17 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     for epoch in range(options.epochs):
         with torch.no_grad():
-            lb, grads = objective_and_grads(p, batch)
-            improved = lb < best
-            best = torch.where(improved, lb, best)
+            lb, grads, score = objective_and_grads(p, batch)
+            improved = score < best
+            best = torch.where(improved, score, best)
+            best_lb = torch.where(improved, lb, best_lb)
             best_epoch = torch.where(improved, epoch, best_epoch)
             _keep_best(p, best_p, improved, on_host)
             for k, v in p.items():
                 v.grad = grads[k]
             if options.curve_every and epoch % options.curve_every == 0:
                 curve_e.append(epoch)
-                curve_v.append(_eval_loss(p, x_ev, l_ev, ls))
+                curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
                 curve_t.append(lb)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
@@ -148,19 +190,28 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             progress(epoch + 1)
 
     with torch.no_grad():
-        ev = _eval_loss(best_p, x_ev, l_ev, ls).cpu().numpy()
+        ev = _eval_loss(best_p, x_ev, phi_ev, l_ev, ls).cpu().numpy()
         curve = torch.stack(curve_v).cpu().numpy() if curve_v else np.zeros((0, r_n))
         curve_tr = torch.stack(curve_t).cpu().numpy() if curve_t else np.zeros((0, r_n))
     seconds = time.perf_counter() - t0
-    best_np, epoch_np = best.cpu().numpy(), best_epoch.cpu().numpy()
+    best_np, epoch_np = best_lb.cpu().numpy(), best_epoch.cpu().numpy()
     weights = {k: v.cpu().float().numpy() for k, v in best_p.items()}
-    return [TrainResult(run=r, params={k: w[i] for k, w in weights.items()},
+
+    def params_of(i: int, r: Run) -> dict[str, np.ndarray]:
+        out = {k: w[i] for k, w in weights.items()}
+        if "c" in out:
+            out["c"] = out["c"] * np.float32(ELASTIC_GAIN)
+        if r.prior is not None:
+            out.update({PRIOR_PREFIX + k: v for k, v in r.prior.items()})
+        return out
+
+    return [TrainResult(run=r, params=params_of(i, r),
                         scaling=scalings[i], best_epoch=int(epoch_np[i]),
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
                         epochs=options.epochs, seconds=seconds,
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
-            for i, r in enumerate(runs)]
+            for i, r in enumerate(given)]
 
 
 def train(run: Run, options: TrainOptions | None = None,

@@ -149,6 +149,9 @@ def test_train_checks_robot_and_never_ignores_it(recording):
     assert code == 1 and "joints" in _one_error_line(out)
     code, out = _run("train", recording, "--n-train", 8, "--epochs", 2,
                      "--robot", "two-link-4-muscle")
+    assert code == 0 and "prior two-link-4-muscle" in out  # the default uses it as prior
+    code, out = _run("train", recording, "--n-train", 8, "--epochs", 2, "--no-prior",
+                     "--robot", "two-link-4-muscle")
     assert code == 0 and "not used: DATA has tau_gravity in every row" in out
 
 
