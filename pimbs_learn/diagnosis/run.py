@@ -86,6 +86,7 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
         "detectable": detectable(physics, data, final, paired.joints, paired.muscles, effects),
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
+                        "rank_delta_bic": _finite(c.rank_bic),
                         "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
                         "named": any(c.effect == n.effect and set(c.units) <= set(n.units)
                                      for n in named)} for c in tried],
