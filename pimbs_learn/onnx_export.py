@@ -22,7 +22,6 @@ import numpy as np
 import torch
 
 from pimbs_calibration.atomic import write_bytes_atomic
-from pimbs_learn.export_graph import SchemaGraph
 from pimbs_learn.io import WEIGHTS, load_body_schema
 
 INPUTS, OUTPUTS = ("theta", "tension"), ("length", "G")
@@ -66,8 +65,7 @@ def export_onnx(model_dir: str | Path, out: str | Path) -> dict[str, Any]:
 
 def _graph(schema: Any) -> torch.nn.Module:
     """The schema's own evaluation graph in float32 (a copy: the loaded schema keeps its own)."""
-    own = getattr(schema, "graph", None)
-    return copy.deepcopy(own).float() if own is not None else SchemaGraph(schema)
+    return copy.deepcopy(schema.graph).float()
 
 
 class _Exported(torch.nn.Module):
