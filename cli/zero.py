@@ -32,8 +32,6 @@ def command(port: str, robot: str, calibration: Path | None, yes: bool, force: b
 
     from pimbs_calibration.arm_model import ArmModel
     from pimbs_hw import is_simulated, open_arm
-    from pimbs_hw.collection.session import SIMULATED_LIMITS
-    from pimbs_hw.mock.arm import served_in_process
     from pimbs_hw.zeroing import default_path, measure_zero, save
 
     model = ArmModel.load(robot)
@@ -48,9 +46,7 @@ def command(port: str, robot: str, calibration: Path | None, yes: bool, force: b
             raise click.ClickException("the arm must be at its home pose before zeroing: "
                                        "run at a terminal, or pass --yes when it is")
         click.confirm("Is the arm at its home pose?", abort=True)
-    simulated = is_simulated(port) or served_in_process(port)
-    with open_arm(port, model.robot, seed=0,
-                  limits=SIMULATED_LIMITS if simulated else None) as (driver, mock):
+    with open_arm(port, model.robot, seed=0) as (driver, mock):
         if mock is not None:
             mock.hold_home()  # the simulation's stand-in for the hands holding the arm
         zero_m, tension = measure_zero(driver, model)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from pimbs_hw.driver import ArmDriver
 from pimbs_hw.mock import MockArm
+from pimbs_hw.mock.arm import served_in_process
 from pimbs_hw.safety import SafetyLimits
 from pimbs_hw.transport import open_transport
 
@@ -38,6 +39,12 @@ SIMULATED_PORTS = ("virtual", "pty", "slcan-pty")
 # the host (and, behind slcan-pty, an emulated adapter), which on a loaded machine can take
 # over a second to come up although nothing is wrong.
 CONNECT_TIMEOUT_S, SIMULATED_CONNECT_TIMEOUT_S = 1.0, 5.0
+# The simulated boards run in this process: their physics solver competes with the collection
+# loop and the boards' own loop for the CPU (and the GIL), so on a loaded machine the loop can
+# miss the real boards' 0.25 s watchdog, and a status frame can come 0.3-0.5 s late, although
+# nothing hangs (seen with the load average at 10 on 2 cores). Real boards have their own CPU
+# and keep the defaults; a silent simulated board is still found, within a second.
+SIMULATED_LIMITS = SafetyLimits(watchdog_s=1.0, silent_after_s=1.0)
 
 
 def is_simulated(port: str) -> bool:
@@ -62,7 +69,9 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
 
     ``zero_m``: encoder readings at the zero pose (from ``pimbs zero``'s calibration file).
     ``mock_options``: extra ``MockArm`` arguments (e.g. ``encoder_offset_m``).
-    ``connect_timeout_s``: how long the boards have to answer (default: 1 s, 5 s simulated).
+    ``limits``: default ``SafetyLimits()``, or ``SIMULATED_LIMITS`` where the boards are
+    simulated in this process. ``connect_timeout_s``: how long the boards have to answer
+    (default: 1 s, 5 s simulated).
     """
     if isinstance(robot, str | Path):
         from pimbs_calibration.description import load_robot
@@ -70,6 +79,8 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         robot = load_robot(robot)
     mock = None
     transport_kwargs = {}
+    if limits is None and (is_simulated(port) or served_in_process(port)):
+        limits = SIMULATED_LIMITS
     if connect_timeout_s is None:
         connect_timeout_s = (SIMULATED_CONNECT_TIMEOUT_S if is_simulated(port)
                              else CONNECT_TIMEOUT_S)

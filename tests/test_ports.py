@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from pimbs_cli.main import main
 from pimbs_hw import PortError, open_arm
-from pimbs_hw.collection.session import SIMULATED_LIMITS
+from pimbs_hw.connect import SIMULATED_LIMITS
 from pimbs_hw.mock.slcan import format_frame, parse_frame
 from pimbs_hw.transport import CanTransport
 

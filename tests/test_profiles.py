@@ -14,7 +14,7 @@ from pimbs_calibration.arm_model import ArmModel
 from pimbs_calibration.recording import read_recording
 from pimbs_cli.main import main
 from pimbs_hw import open_arm
-from pimbs_hw.collection.session import SIMULATED_LIMITS
+from pimbs_hw.connect import SIMULATED_LIMITS
 from pimbs_hw.protocol.profile import ProfileError, load_profile
 from pimbs_hw.protocol.profiles import profile_path
 from pimbs_hw.safety import (

@@ -14,11 +14,10 @@ import numpy as np
 
 from pimbs_calibration.description import RobotDescription
 from pimbs_calibration.effects import parse_effect
-from pimbs_hw import is_simulated, open_arm
+from pimbs_hw import open_arm
 from pimbs_hw.collection.link import DriverLink
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.errors import HardwareError
-from pimbs_hw.mock.arm import served_in_process
 from pimbs_hw.safety import (
     BoardSilent,
     BusOff,
@@ -27,18 +26,10 @@ from pimbs_hw.safety import (
     LinkLost,
     LoadcellSaturated,
     Overheat,
-    SafetyLimits,
     SafetyStop,
     TensionLimit,
     WatchdogExpired,
 )
-
-# The simulated boards run in this process: their physics solver competes with the collection
-# loop and the boards' own loop for the CPU (and the GIL), so on a loaded machine the loop can
-# miss the real boards' 0.25 s watchdog, and a status frame can come 0.3-0.5 s late, although
-# nothing hangs (seen with the load average at 10 on 2 cores). Real boards have their own CPU
-# and keep the defaults; a silent simulated board is still found, within a second.
-SIMULATED_LIMITS = SafetyLimits(watchdog_s=1.0, silent_after_s=1.0)
 
 
 class ConnectError(HardwareError):
@@ -58,10 +49,7 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed,
-                limits=SIMULATED_LIMITS if is_simulated(port) or served_in_process(port)
-                else None,
-                zero_m=zero_m))
+                speed=speed, zero_m=zero_m))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "
