@@ -153,10 +153,7 @@ class Plant:
         arm time alone, the same on a fast or a busy host.
         """
         s, target = self.state, self._solver.target
-        if not self._solver.idle():
-            dt_arm = 0.0
-        else:
-            dt_arm = dt * self.speed
+        dt_arm = dt * self.speed if self._solver.idle() else 0.0
         a = 1.0 - np.exp(-dt_arm / self.tau_s)
         length = s.length + a * (target.length - s.length)
         approach = self._play.update(length)
