@@ -149,6 +149,9 @@ class State:
     tension: np.ndarray
     kappa: np.ndarray
     tau: np.ndarray
+    # (B, M) factor from each reading to the true tension (a gain, capstan friction), or
+    # None: it scales that reading's noise too (see ``residuals``)
+    scale: np.ndarray | None = None
 
 
 def apply_effects(physics: Physics, data: Samples, units: list[Unit],
@@ -181,17 +184,20 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
             else:
                 gravity_extra += p * physics.gravity.level(int(u.part.removeprefix("level")))
     # the loadcell's chain, undone from the reading back: bias and drift, gain, friction
+    factor = None
     if np.any(scale != 1.0):
-        f *= scale
+        factor = np.broadcast_to(scale, f.shape)
     if np.any(gain):
-        f *= np.exp(data.approach * gain)
+        factor = (1.0 if factor is None else factor) * np.exp(data.approach * gain)
+    if factor is not None:
+        f *= factor
     tau = data.tau
     if np.any(delta):
         theta = theta - delta
         tau = tau + physics.gravity.torque(theta) - physics.gravity.torque(data.theta)
     if np.any(gravity_extra):
         tau = tau + physics.gravity.torque(theta, gravity_extra)
-    return State(theta, f, kappa, tau)
+    return State(theta, f, kappa, tau, factor)
 
 
 def stretch_term(tension: np.ndarray) -> np.ndarray:
@@ -238,7 +244,25 @@ def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray
         r_len = r_len * data.len_weight
     gt = grads @ weights  # Gᵀ per sample, (B, N, M)
     r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
+    if state.scale is not None:
+        r_tau = r_tau / reading_scale(gt, state.scale)
     return r_len, r_tau
+
+
+def reading_scale(gt: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """(B, N) factor by which scaled readings scale each joint's torque noise.
+
+    The loadcell noise is in the readings; undoing a gain ``f/(1 + g)`` shrinks it with
+    the tension, and a likelihood with each joint's noise level profiled out would reward
+    that shrinkage for itself: all gains up and all gravity down fits "better" without
+    limit. So the torque residual is expressed in reading units (the noise of joint ``i``
+    at a sample is Σ_j G_ij² s_j² σ² against Σ_j G_ij² σ² without the scale) — then a
+    gain common to all loadcells is exactly a common scale of the gravity torques, as the
+    physics says, and not a likelihood bonus of n·N·log(1 + g).
+    """
+    g2 = gt**2
+    return np.sqrt(np.einsum("bnm,bm->bn", g2, scale**2)
+                   / np.maximum(g2.sum(axis=2), 1e-300))
 
 
 @dataclass

@@ -257,7 +257,12 @@ def anchor(physics: Physics, data: Samples, reference: Samples, cand: Candidate)
     for u, p in zip(cand.units, cand.ref_fit.params, strict=True):
         params[cand.fit.units.index(u)] = p
     at_ref = log_lik_at(physics, data, cand.fit.units, params, key="full")
-    cand.rank_bic = 2.0 * (cand.fit.log_lik - at_ref) - cand.df * np.log(data.n)
+    # a discount, never a bonus: where the reference's wants do not carry over to the real
+    # arm (another routing, another approximation error) its estimates can fit the real
+    # data worse than no effect at all, and that must not lift a candidate above its own
+    # evidence against zero
+    cand.rank_bic = min(2.0 * (cand.fit.log_lik - at_ref) - cand.df * np.log(data.n),
+                        cand.delta_bic)
 
 
 def _merge(named: list[Candidate], best: Candidate) -> list[Candidate]:
