@@ -94,6 +94,22 @@ def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.nda
     return _whiten(*residuals(physics, state, data, weights, key), *sigma)
 
 
+def _base_columns(physics: Physics, data: Samples, base: Fit, r0: np.ndarray,
+                  sigma) -> np.ndarray:
+    """Orthonormal basis of ∂(whitened residual)/∂(each parameter of ``base``)."""
+    if not base.units:
+        return np.zeros((len(r0), 0))
+    cols = []
+    for i, u in enumerate(base.units):
+        step = FD_STEP[u.effect]
+        params = base.params.copy()
+        params[i] += step
+        cols.append((_whitened(physics, data, base.units, params, sigma) - r0) / step)
+    q, r = np.linalg.qr(np.stack(cols, axis=1))
+    keep = np.abs(np.diag(r)) > 1e-9 * max(np.abs(np.diag(r)).max(), 1e-300)
+    return q[:, keep]
+
+
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
     """Units of ``effect`` that the residuals of ``base`` ask for (greedy, linearised)."""
     sigma = (base.sigma_len, base.sigma_tau)
@@ -104,13 +120,18 @@ def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit
     if not groups or taken >= MAX_GROUPS.get(effect, len(groups) + taken):
         return []
     r0 = _whitened(physics, data, base.units, base.params, sigma)
+    # the effects already selected are refitted jointly with the new one, so their columns
+    # are projected out: a drift on the muscle whose offset is already named is mostly that
+    # offset (T − T_zero has a large mean), and only what the offset cannot take is news
+    held = _base_columns(physics, data, base, r0, sigma)
     cols = {}
     for group in groups:
         for u in group:
             step = FD_STEP[effect]
             plus = _whitened(physics, data, [*base.units, u], np.append(base.params, step),
                              sigma)
-            cols[u] = (plus - r0) / step
+            col = (plus - r0) / step
+            cols[u] = col - held @ (held.T @ col)
     chosen: list[list[Unit]] = []
     rss = float(r0 @ r0)
     while len(chosen) < min(len(groups), MAX_GROUPS.get(effect, len(groups))):
