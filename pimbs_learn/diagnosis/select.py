@@ -240,29 +240,31 @@ def _cv_of(physics: Physics, data: Samples, fit: Fit) -> dict:
                           x0=fit.params)
 
 
-def reference_explains(physics: Physics, reference: Samples, ref_null: Fit,
-                       cand: Candidate) -> bool:
+def reference_explains(cand: Candidate, ref_base: Fit) -> bool:
     """Is the candidate the model's own approximation rather than missing physics?
 
     The reference is a clean simulation of the same poses. Where the nuisance models (a
     polynomial body schema, a fitted gravity function) cannot follow the arm exactly, the
     reference "wants" the same effect as the real data. Then the effect counts only if the
-    real parameters differ significantly from the reference's.
+    real parameters differ significantly from the reference's. Both sides fit the same
+    model — the effects already named plus the candidate (``anchor``) — so a gain the
+    reference wants only beside a link mass is compared with the real gain beside it.
     """
-    fit = cand.ref_fit or fit_effects(physics, reference, cand.units, key="ref")
+    fit = cand.ref_fit
     df = len(cand.units)
-    if chi2.sf(max(2.0 * (fit.log_lik - ref_null.log_lik), 0.0), df) >= P_VALUE:
+    if chi2.sf(max(2.0 * (fit.log_lik - ref_base.log_lik), 0.0), df) >= P_VALUE:
         return False
     idx = [cand.fit.units.index(u) for u in cand.units]
     if cand.fit.cov is None or fit.cov is None:
         return False
-    diff = cand.fit.params[idx] - fit.params
-    cov = cand.fit.cov[np.ix_(idx, idx)] + fit.cov
+    diff = cand.fit.params[idx] - fit.params[idx]
+    cov = cand.fit.cov[np.ix_(idx, idx)] + fit.cov[np.ix_(idx, idx)]
     stat = float(diff @ np.linalg.pinv(cov) @ diff)
     return chi2.sf(stat, df) >= P_VALUE
 
 
-def anchor(physics: Physics, data: Samples, reference: Samples, cand: Candidate) -> None:
+def anchor(physics: Physics, data: Samples, reference: Samples, cand: Candidate,
+           ref_base: Fit) -> None:
     """Rank ``cand`` by what the real data want beyond what the reference wants.
 
     A clean simulation of the same poses already "wants" some of every effect where the
@@ -272,11 +274,16 @@ def anchor(physics: Physics, data: Samples, reference: Samples, cand: Candidate)
     approximation error rather than the concealed physics. So the likelihood ratio that
     ranks is taken against the candidate's units held at the reference's own estimates
     instead of at zero (the likelihood counterpart of ``reference_explains``' Wald test).
+    The reference fits the same model as the real data (``ref_base``: the effects already
+    named, fitted on the reference), since what it wants of one effect depends on the
+    others beside it.
     """
-    cand.ref_fit = fit_effects(physics, reference, cand.units, key="ref")
+    cand.ref_fit = fit_effects(physics, reference, cand.fit.units, key="ref",
+                               x0=np.append(ref_base.params, np.zeros(len(cand.units))))
     params = cand.fit.params.copy()
-    for u, p in zip(cand.units, cand.ref_fit.params, strict=True):
-        params[cand.fit.units.index(u)] = p
+    for u in cand.units:
+        i = cand.fit.units.index(u)
+        params[i] = cand.ref_fit.params[i]
     at_ref = log_lik_at(physics, data, cand.fit.units, params, key="full")
     # a discount, never a bonus: where the reference's wants do not carry over to the real
     # arm (another routing, another approximation error) its estimates can fit the real
@@ -318,7 +325,6 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
     tried: list[Candidate] = []
     if reference is not None and reference.n != data.n:
         reference = None
-    ref_null = fit_effects(physics, reference, [], key="ref") if reference else None
     for _ in range(MAX_ROUNDS):
         round_candidates = []
         for effect in effects:
@@ -329,17 +335,19 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
                 round_candidates.append(cand)
         tried += round_candidates
         ranked = [c for c in round_candidates if c.p_value < P_VALUE and c.delta_bic > 0]
+        ref_base = (fit_effects(physics, reference, base.units, x0=base.params, key="ref")
+                    if reference is not None and ranked else None)
         for cand in ranked:
-            if reference is None:
+            if ref_base is None:
                 cand.rank_bic = cand.delta_bic
             else:
-                anchor(physics, data, reference, cand)
+                anchor(physics, data, reference, cand, ref_base)
         ranked.sort(key=lambda c: -c.rank_bic)
         best = None
         for cand in ranked[:CV_PER_ROUND]:
             _cross_validate(physics, data, cand, base)
-            if cand.significant and not (reference is not None and reference_explains(
-                    physics, reference, ref_null, cand)):
+            if cand.significant and not (ref_base is not None and reference_explains(
+                    cand, ref_base)):
                 best = cand
                 break
         if best is None:
