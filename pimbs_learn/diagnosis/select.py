@@ -7,15 +7,17 @@ it is named:
 
 * a likelihood-ratio test against the current model (p below ``P_VALUE``);
 * ΔBIC > 0, which also ranks effects — with a reference recording, the ΔBIC of the
-  real parameters against the reference's own fit of the same units (what the real data
-  want beyond the nuisance models' approximation, see ``anchor``);
+  real parameters against the reference's own fit of the same model (what the real data
+  want beyond the nuisance models' approximation, see ``anchor``), never above the plain
+  ΔBIC;
 * five-fold cross-validation: held-out residuals must shrink, by ``MIN_CV_GAIN`` overall
   and significantly sample by sample (paired z ≥ ``MIN_CV_Z``), so structure that a
   flexible effect could absorb on the training rows is not reported, while an effect on a
   few muscles of many still is.
 
 Effects are added one at a time (forward selection), the strongest first, each on top of
-a joint refit of all those already selected; after each addition, earlier effects that the
+a joint refit of all those already selected (the screen's linearisation lets them move
+too); after each addition, earlier effects that the
 new one makes redundant are dropped again (backward check).
 """
 
