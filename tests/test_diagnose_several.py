@@ -234,3 +234,30 @@ def test_drift_beside_an_offset_on_the_same_muscle_is_named(tmp_path):
     assert named["tension_offset"]["muscles"] == named["thermal_drift"]["muscles"] == ["m5"]
     (drift,) = named["thermal_drift"]["parameters"].values()
     assert drift["coefficient_N_per_C"] == pytest.approx(0.5, abs=0.2)
+
+
+def test_units_the_reference_wants_just_as_much_are_dropped_one_by_one():
+    """Joint offsets found on two joints beside a link mass (numbers of the 5-DOF arm, mass
+    ×1.4 + 0.04 rad on shoulder roll, another routing): the reference wants 0.22 ± 0.03 rad
+    on forearm yaw too — the nuisance models' approximation — and the real 0.14 ± 0.03 is
+    not different, so that joint goes; shoulder roll (0.046 against 0.009) stays. A
+    candidate the reference explains entirely is left to the whole-candidate veto."""
+    from pimbs_learn.diagnosis.model import Fit
+    from pimbs_learn.diagnosis.select import Candidate, reference_units
+
+    mass = [Unit("link_mass", 4, "distal")]
+    roll, yaw = Unit("joint_offset", 1), Unit("joint_offset", 4)
+    units = [*mass, roll, yaw]
+
+    def fit(params, se):
+        return Fit(units, np.array(params), np.zeros((1, 1)), np.ones(1), np.ones(1), 0.0,
+                   np.diag(np.square(se)))
+
+    real = fit([0.0, 0.0455, 0.1434], [0.04, 0.0013, 0.0285])
+    cand = Candidate("joint_offset", [roll, yaw], real, 900.0, 2, 0.0, 890.0, {}, None,
+                     ref_fit=fit([-0.35, 0.0087, 0.2183], [0.04, 0.0014, 0.0318]))
+    assert reference_units(cand) == [yaw]
+    cand.ref_fit = fit([-0.35, 0.0450, 0.2183], [0.04, 0.0014, 0.0318])
+    assert reference_units(cand) == []  # both: the veto of the whole candidate decides
+    cand.ref_fit = fit([-0.35, 0.0, 0.0], [0.04, 0.0014, 0.0318])
+    assert reference_units(cand) == []  # the reference wants neither
