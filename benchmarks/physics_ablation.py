@@ -3,11 +3,13 @@
 Each arm gives one 496-sample ATL recording; per seed, N samples are drawn, every method
 trains on exactly those samples from the same initial weights (seed), and the rest of the
 recording evaluates. Prints one JSON line per run and a summary of paired changes against
-the first method (Basic). Tuning arms: two-link, five-dof (pimbs simulate). Held-out arms:
-foreign (tests/foreign_arm.py) and spatial (tests/spatial_arm.py), never tuned on.
+the first method (Basic). A method is STRUCTURE:LOSS[@WEIGHT][~SCHEDULE], e.g.
+`se:basic+const+pinn@auto~exp` (the default of `pimbs train`, no prior); without a
+schedule, the paper's constant lr. Tuning arms: two-link, five-dof (pimbs simulate).
+Held-out arms: foreign (tests/foreign_arm.py) and spatial (tests/spatial_arm.py).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/physics_ablation.py --arms two-link \
-        --n 5 10 --seeds 5 --epochs 4000 --methods mlp:basic se:basic+const+pinn@auto
+        --n 5 10 --seeds 5 --epochs 4000 --methods mlp:basic se:basic+const+pinn@auto~exp
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -62,14 +65,16 @@ def recording(arm: str, data_dir: Path) -> Path:
     return path
 
 
-def method(spec: str) -> tuple[str, LossConfig]:
-    """'se:basic+const+pinn@auto' / 'mlp:basic+pinn@1e-5' -> (structure, loss)."""
+def method(spec: str) -> tuple[str, LossConfig, str]:
+    """'se:basic+const+pinn@auto~exp' / 'mlp:basic+pinn@1e-5' -> (structure, loss, lr
+    schedule); without '~' the schedule is constant (the paper's Adam)."""
+    spec, _, schedule = spec.partition("~")
     s, _, rest = spec.partition(":")
     loss, _, w = rest.partition("@")
     if w.startswith("auto"):
         mult = float(w[4:].lstrip("x") or 1.0)
-        return STRUCT[s], LossConfig.parse(loss, mult, "auto")
-    return STRUCT[s], LossConfig.parse(loss, float(w or 1e-5))
+        return STRUCT[s], LossConfig.parse(loss, mult, "auto"), schedule or "constant"
+    return STRUCT[s], LossConfig.parse(loss, float(w or 1e-5)), schedule or "constant"
 
 
 def main() -> None:
@@ -94,9 +99,10 @@ def main() -> None:
             for seed in range(a.seed0, a.seed0 + a.seeds):
                 tr, ev = split(pool, n, seed)
                 for spec in a.methods:
-                    st, loss = method(spec)
+                    st, loss, schedule = method(spec)
                     t0 = time.perf_counter()
-                    res = train_runs([Run(tr, ev, loss, seed, True, st)], opts)[0]
+                    res = train_runs([Run(tr, ev, loss, seed, True, st)],
+                                     replace(opts, schedule=schedule))[0]
                     row = {"arm": arm, "n": n, "seed": seed, "method": spec,
                            "eval": res.eval_loss * REPORT_SCALE, "best_epoch": res.best_epoch,
                            "s": round(time.perf_counter() - t0, 1)}

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +42,7 @@ class Method:
     structure: str = MLP
     weighting: str = "fixed"
     prior: bool = False
+    schedule: str = "constant"  # learning-rate schedule (TrainOptions.schedule)
 
     @property
     def label(self) -> str:
@@ -50,6 +51,8 @@ class Method:
             name = "SE " + name
         if "pinn" in self.loss:
             name += " (auto α)" if self.weighting == "auto" else f" (α={self.alpha:g})"
+        if self.schedule != "constant":
+            name += f", lr {self.schedule}"
         return name + (" + prior" if self.prior else "")
 
     def config(self) -> LossConfig:
@@ -58,9 +61,11 @@ class Method:
 
 
 # The new default of `pimbs train` (without and with the robot description as prior).
-DEFAULT = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto")
-DEFAULT_PRIOR = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto",
-                       prior=True)
+DEFAULT = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto",
+                 schedule="exp")
+DEFAULT_PRIOR = replace(DEFAULT, prior=True)
+# the paper's Basic with the default's learning-rate schedule: what the schedule alone does
+BASIC_EXP = Method("basic", schedule="exp")
 
 
 @dataclass(frozen=True)
@@ -81,7 +86,7 @@ def paper_tables(quick: bool = False) -> list[TableSpec]:
     paper = tuple(Method(m) for m in PAPER_LOSSES)
     sweep = (Method("basic"), Method("basic+const"), Method("basic+pinn", 1e-5),
              *(Method("basic+const+pinn", a) for a in (1e-5, 1e-6, 1e-7, 1e-8)))
-    atl_new = (DEFAULT, DEFAULT_PRIOR)
+    atl_new = (BASIC_EXP, DEFAULT, DEFAULT_PRIOR)
     ev = 200 if quick else 1000
     return [
         TableSpec("table1", "Table I: AL-Map, 2-DOF 4-muscle simulation", TWO_LINK, False,
@@ -161,11 +166,13 @@ def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
     """
     results: dict[tuple[str, int], list[TrainResult]] = {}
     for n, items in groups.items():
-        kinds: dict[str, list[tuple[Method, Run]]] = {}  # one structure per stack
+        # one structure and learning-rate schedule per stack
+        kinds: dict[tuple[str, str], list[tuple[Method, Run]]] = {}
         for it in items:
-            kinds.setdefault(it[0].structure, []).append(it)
+            kinds.setdefault((it[0].structure, it[0].schedule), []).append(it)
         batches = list(kinds.values()) if stack else [[it] for it in items]
         for batch in batches:
+            opts = replace(options, schedule=batch[0][0].schedule)
             done = 0
 
             def tick(e: int, k: int = len(batch)) -> None:
@@ -173,7 +180,7 @@ def run_table(spec: TableSpec, groups: dict[int, list[tuple[Method, Run]]],
                 on_epochs((e - done) * k)
                 done = e
 
-            out = train_runs([r for _, r in batch], options, progress=tick)
+            out = train_runs([r for _, r in batch], opts, progress=tick)
             for (method, _), res in zip(batch, out, strict=True):
                 results.setdefault((method.label, n), []).append(res)
         log(f"{spec.key} N_train={n}: {len(items)} runs done")

@@ -72,6 +72,8 @@ def train_reference(run: Run, options: TrainOptions | None = None,
                 best_state = {k: v.detach().clone() for k, v in net.params.items()}
         opt.zero_grad()
         total.backward()
+        for group in opt.param_groups:
+            group["lr"] = options.lr_at(epoch)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
                                      or epoch + 1 == options.epochs):
@@ -83,7 +85,7 @@ def train_reference(run: Run, options: TrainOptions | None = None,
     return TrainResult(run=run, params={kk: v.cpu().float().numpy() for kk, v in
                                         best_state.items()},
                        scaling=scaling, best_epoch=k, train_loss=train_hist[k],
-                       eval_loss=eval_hist[k], epochs=options.epochs,
+                       eval_loss=eval_hist[k], epochs=options.epochs, schedule=options.schedule,
                        seconds=time.perf_counter() - t0,
                        curve_epochs=np.arange(0, options.epochs, every),
                        curve_eval=np.asarray(eval_hist[::every]),

@@ -184,6 +184,9 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                 curve_e.append(epoch)
                 curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
                 curve_t.append(lb)
+        if options.schedule != "constant":
+            for group in opt.param_groups:
+                group["lr"] = options.lr_at(epoch)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
                                      or epoch + 1 == options.epochs):
@@ -208,7 +211,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     return [TrainResult(run=r, params=params_of(i, r),
                         scaling=scalings[i], best_epoch=int(epoch_np[i]),
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
-                        epochs=options.epochs, seconds=seconds,
+                        epochs=options.epochs, seconds=seconds, schedule=options.schedule,
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
             for i, r in enumerate(given)]
