@@ -89,9 +89,11 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=["mlp:basic"])
     ap.add_argument("--data", type=Path, default=Path("/tmp/learn/data"))
     ap.add_argument("--out", type=Path, default=None, help="append JSON lines here")
+    ap.add_argument("--curve-every", type=int, default=0,
+                    help="add L_eval and training L_basic every K epochs to each JSON line")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    opts = TrainOptions(epochs=a.epochs, hidden=a.hidden, lr=a.lr)
+    opts = TrainOptions(epochs=a.epochs, hidden=a.hidden, lr=a.lr, curve_every=a.curve_every)
     rows = []
     for arm in a.arms:
         pool = load_samples(recording(arm, a.data))
@@ -106,6 +108,10 @@ def main() -> None:
                     row = {"arm": arm, "n": n, "seed": seed, "method": spec,
                            "eval": res.eval_loss * REPORT_SCALE, "best_epoch": res.best_epoch,
                            "s": round(time.perf_counter() - t0, 1)}
+                    if a.curve_every:
+                        row.update(curve_epochs=res.curve_epochs.tolist(),
+                                   curve_eval=(res.curve_eval * REPORT_SCALE).tolist(),
+                                   curve_train=(res.curve_train * REPORT_SCALE).tolist())
                     rows.append(row)
                     print(json.dumps(row), flush=True)
                     if a.out:
