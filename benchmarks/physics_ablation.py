@@ -72,9 +72,10 @@ def method(spec: str) -> tuple[str, LossConfig, str]:
     s, _, rest = spec.partition(":")
     loss, _, w = rest.partition("@")
     if w.startswith("auto"):
-        mult = float(w[4:].lstrip("x") or 1.0)
-        return STRUCT[s], LossConfig.parse(loss, mult, "auto"), schedule or "constant"
-    return STRUCT[s], LossConfig.parse(loss, float(w or 1e-5)), schedule or "constant"
+        config = LossConfig.parse(loss, float(w[4:].lstrip("x") or 1.0), "auto")
+    else:
+        config = LossConfig.parse(loss, float(w or 1e-5))
+    return STRUCT[s], config, schedule or "constant"
 
 
 def main() -> None:

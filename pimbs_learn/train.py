@@ -184,9 +184,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                 curve_e.append(epoch)
                 curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
                 curve_t.append(lb)
-        if options.schedule != "constant":
-            for group in opt.param_groups:
-                group["lr"] = options.lr_at(epoch)
+        for group in opt.param_groups:
+            group["lr"] = options.lr_at(epoch)
         opt.step()
         if progress is not None and ((epoch + 1) % progress_every == 0
                                      or epoch + 1 == options.epochs):
