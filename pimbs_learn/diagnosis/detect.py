@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, norm
 
-from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, Unit, units_of
-from pimbs_learn.diagnosis.select import FD_STEP, P_VALUE, _whitened
+from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, units_of
+from pimbs_learn.diagnosis.select import P_VALUE, _whitened, fd_column
 
 POWER = 0.9
 HELDOUT_FACTOR = 3.5  # measured: see the module docs
@@ -35,19 +35,6 @@ WHAT = {"tendon_friction": ("mu", ""), "link_mass": ("mass change", "× the link
         "joint_offset": ("offset", "rad")}
 
 
-def _column(physics: Physics, data: Samples, fit: Fit, unit: Unit, r0: np.ndarray,
-            sigma) -> np.ndarray:
-    """∂(whitened residual)/∂(parameter of ``unit``) at ``fit`` (schema refitted)."""
-    step = FD_STEP[unit.effect]
-    if unit in fit.units:
-        params = fit.params.copy()
-        params[fit.units.index(unit)] += step
-        plus = _whitened(physics, data, fit.units, params, sigma)
-    else:
-        plus = _whitened(physics, data, [*fit.units, unit], np.append(fit.params, step), sigma)
-    return (plus - r0) / step
-
-
 def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
                muscles: list[str], effects: tuple[str, ...] = EFFECTS) -> dict:
     """Per effect kind: the smallest magnitude this recording names with 90 % probability,
@@ -57,7 +44,7 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
     z_needed = float(np.sqrt(max(chi2.isf(P_VALUE, 1), np.log(data.n))))
     factor = HELDOUT_FACTOR * (z_needed + float(norm.ppf(POWER)))
     if fit.units:
-        own = np.stack([_column(physics, data, fit, u, r0, sigma) for u in fit.units], 1)
+        own = np.stack([fd_column(physics, data, fit, u, r0, sigma) for u in fit.units], 1)
         basis, _ = np.linalg.qr(own)
     else:
         basis = np.zeros((len(r0), 0))
@@ -69,11 +56,11 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
             if unit in fit.units or unit.part == "common":
                 continue
             # the effect's own nuisance parts (a link mass' proximal shares) are fitted along
-            extra = [_column(physics, data, fit, u, r0, sigma) for u in group[1:]
+            extra = [fd_column(physics, data, fit, u, r0, sigma) for u in group[1:]
                      if u not in fit.units]
             q = np.hstack([basis, np.linalg.qr(np.stack(extra, 1) - basis @ (
                 basis.T @ np.stack(extra, 1)))[0]]) if extra else basis
-            col = _column(physics, data, fit, unit, r0, sigma)
+            col = fd_column(physics, data, fit, unit, r0, sigma)
             col = col - q @ (q.T @ col)
             info = float(col @ col)
             if info <= 0:

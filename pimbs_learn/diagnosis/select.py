@@ -96,17 +96,26 @@ def _whitened(physics: Physics, data: Samples, units: list[Unit], params: np.nda
     return _whiten(*residuals(physics, state, data, weights, key), *sigma)
 
 
+def fd_column(physics: Physics, data: Samples, fit: Fit, unit: Unit, r0: np.ndarray,
+              sigma) -> np.ndarray:
+    """∂(whitened residual)/∂(parameter of ``unit``) at ``fit`` (schema refitted), by a
+    finite step: moving the unit's fitted value, or adding the unit to the fit."""
+    step = FD_STEP[unit.effect]
+    if unit in fit.units:
+        params = fit.params.copy()
+        params[fit.units.index(unit)] += step
+        plus = _whitened(physics, data, fit.units, params, sigma)
+    else:
+        plus = _whitened(physics, data, [*fit.units, unit], np.append(fit.params, step), sigma)
+    return (plus - r0) / step
+
+
 def _base_columns(physics: Physics, data: Samples, base: Fit, r0: np.ndarray,
                   sigma) -> np.ndarray:
     """Orthonormal basis of ∂(whitened residual)/∂(each parameter of ``base``)."""
     if not base.units:
         return np.zeros((len(r0), 0))
-    cols = []
-    for i, u in enumerate(base.units):
-        step = FD_STEP[u.effect]
-        params = base.params.copy()
-        params[i] += step
-        cols.append((_whitened(physics, data, base.units, params, sigma) - r0) / step)
+    cols = [fd_column(physics, data, base, u, r0, sigma) for u in base.units]
     q, r = np.linalg.qr(np.stack(cols, axis=1))
     keep = np.abs(np.diag(r)) > 1e-9 * max(np.abs(np.diag(r)).max(), 1e-300)
     return q[:, keep]
@@ -129,10 +138,7 @@ def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit
     cols = {}
     for group in groups:
         for u in group:
-            step = FD_STEP[effect]
-            plus = _whitened(physics, data, [*base.units, u], np.append(base.params, step),
-                             sigma)
-            col = (plus - r0) / step
+            col = fd_column(physics, data, base, u, r0, sigma)
             cols[u] = col - held @ (held.T @ col)
     chosen: list[list[Unit]] = []
     rss = float(r0 @ r0)
@@ -170,13 +176,24 @@ def fit_candidate(physics: Physics, data: Samples, base: Fit, effect: str,
         weak = [u for u in units if z[all_units.index(u)] < UNIT_Z]
         if weak and len(weak) < len(units):
             units = [u for u in units if u not in weak]
-            all_units = [*base.units, *units]
-            x0 = np.array([fit.params[fit.units.index(u)] for u in all_units])
-            fit = fit_effects(physics, data, all_units, x0=x0, key="full")
+            fit = _refit(physics, data, base, units, fit)
+    return _candidate(effect, units, fit, base, data.n, cv_base)
+
+
+def _refit(physics: Physics, data: Samples, base: Fit, units: list[Unit], start: Fit) -> Fit:
+    """Joint fit of ``base``'s units and ``units``, started at ``start``'s estimates."""
+    all_units = [*base.units, *units]
+    return fit_effects(physics, data, all_units, key="full",
+                       x0=np.array([start.params[start.units.index(u)] for u in all_units]))
+
+
+def _candidate(effect: str, units: list[Unit], fit: Fit, base: Fit, n: int,
+               cv_before: dict) -> Candidate:
+    """The candidate ``fit`` makes against ``base``: LR test and ΔBIC, not yet CV'd."""
     df = len(units)
     lr = max(2.0 * (fit.log_lik - base.log_lik), 0.0)
-    return Candidate(effect, units, fit, lr, df, float(chi2.sf(lr, df)),
-                     lr - df * np.log(data.n), cv_base, None)
+    return Candidate(effect, units, fit, lr, df, float(chi2.sf(lr, df)), lr - df * np.log(n),
+                     cv_before, None)
 
 
 def _cross_validate(physics: Physics, data: Samples, cand: Candidate, base: Fit) -> None:
@@ -324,13 +341,8 @@ def _without(physics: Physics, data: Samples, reference: Samples, cand: Candidat
              base: Fit, ref_base: Fit, drop: list[Unit]) -> Candidate:
     """``cand`` refitted without the units in ``drop`` (anchored again, not yet CV'd)."""
     units = [u for u in cand.units if u not in drop]
-    all_units = [*base.units, *units]
-    fit = fit_effects(physics, data, all_units, key="full",
-                      x0=np.array([cand.fit.params[cand.fit.units.index(u)]
-                                   for u in all_units]))
-    lr = max(2.0 * (fit.log_lik - base.log_lik), 0.0)
-    out = Candidate(cand.effect, units, fit, lr, len(units), float(chi2.sf(lr, len(units))),
-                    lr - len(units) * np.log(data.n), cand.cv_before, None)
+    fit = _refit(physics, data, base, units, cand.fit)
+    out = _candidate(cand.effect, units, fit, base, data.n, cand.cv_before)
     anchor(physics, data, reference, out, ref_base)
     return out
 
