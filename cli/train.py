@@ -124,6 +124,10 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     console.print(f"best epoch {result.best_epoch}/{epochs}: train L_basic "
                   f"{metrics['train_loss']:.4g}, eval L_eval {metrics['eval_loss']:.4g} "
                   f"(×1e5 m², rms {metrics['eval_rms_mm']:.3f} mm) in {result.seconds:.1f} s")
+    if result.torque_noise_rms is not None:
+        console.print(f"torque balance known to ±{result.torque_noise_rms:.3g} N·m rms (evidence "
+                      "of lengths and torques together); the physics weight floors there",
+                      markup=False)
     geo = model_error(run)
     if geo is not None:
         metrics.update(model_eval_loss=geo["eval_loss"], model_rms_mm=geo["rms_mm"])

@@ -12,10 +12,13 @@ Automatic physics weight (``auto``): the residuals of lengths and torques are tr
 Gaussian with unknown variances, profiled out. The negative log-likelihood per sample is
 (M/2)·log mse_l + (N/2)·log mse_τ; its gradient, rescaled by mse_l (Adam does not see a
 common scale), is ∇mse_l + α_eff·∇mse_τ with α_eff = (N/M)·mse_l/mse_τ. Each variance has
-a floor relative to the data's own scale, so α_eff is dimensionless in use, needs no unit
-choice, and falls by itself when the torque balance cannot be met (friction, offsets):
-the torque residual then stays large. α_eff is recomputed every epoch and held constant
-within it (iteratively re-weighted least squares).
+a floor relative to the data's own scale, so α_eff is dimensionless in use and needs no
+unit choice. The torque floor is also the torque noise that the evidence of a smooth model
+supports (:mod:`pimbs_learn.noise`): a large network interpolates its few samples, wrong
+torques included, so its own residual cannot tell a wrong torque balance (friction,
+offsets) from a right one, and α_eff falls by itself only through that floor.
+α_eff is recomputed every epoch and held constant within it (iteratively re-weighted
+least squares).
 """
 
 from __future__ import annotations

@@ -144,6 +144,8 @@ class TrainResult:
     epochs: int
     seconds: float
     schedule: str = "constant"  # the learning-rate schedule it was trained with
+    # torque noise (N·m rms) the evidence supports, the floor of the automatic weight
+    torque_noise_rms: float | None = None
     curve_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     curve_eval: np.ndarray = field(default_factory=lambda: np.zeros(0))
     curve_train: np.ndarray = field(default_factory=lambda: np.zeros(0))  # L_basic, same epochs
@@ -157,6 +159,7 @@ class TrainResult:
             "best_epoch": self.best_epoch,
             "epochs": self.epochs,
             "lr_schedule": self.schedule,
+            "torque_noise_rms": self.torque_noise_rms,
             "seconds": self.seconds,
             "n_train": self.run.train.n_samples,
             "n_eval": self.run.eval.n_samples,

@@ -24,6 +24,7 @@ import torch
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
+from pimbs_learn.noise import estimate_noise
 from pimbs_learn.objective import ELASTIC_GAIN, Batch, elastic_length, objective_and_grads
 from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
@@ -31,9 +32,29 @@ from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
 _EVAL_CHUNK = 2048  # eval rows per matmul; bounds memory for large evaluation sets
 # Floors of the profiled variances (automatic physics weight), relative to the training
 # data's own scales: rms length error ≥ LENGTH_FLOOR·max|l|, rms torque error ≥
-# TORQUE_FLOOR·max|τ|. They only matter once both residuals are that small.
+# TORQUE_FLOOR·max|τ|, and the torque floor is raised to the evidence's torque noise
+# (:func:`_torque_floor`). They matter once the network fits its samples that well.
 LENGTH_FLOOR = 1e-4
 TORQUE_FLOOR = 1e-3
+
+
+def _torque_floor(r: Run) -> tuple[float, float | None]:
+    """(floor of mse_τ, the evidence's torque noise rms or None) of one run.
+
+    With the automatic weight the floor is also the torque noise that a smooth model of
+    lengths and torques together supports (:mod:`pimbs_learn.noise`): the network can
+    interpolate wrong torques, the evidence cannot be fooled that way, so where the torque
+    balance is off (friction, offsets) the physics weight backs off by itself.
+    """
+    floor = (TORQUE_FLOOR * float(np.nan_to_num(np.abs(r.train.tau)).max() + 1e-12)) ** 2
+    if not (r.loss.pinn and r.loss.weighting == "auto"):
+        return floor, None
+    t = r.train
+    try:
+        noise = estimate_noise(t.theta, t.tension, t.length, t.tau, seed=r.seed).torque_rms
+    except torch.linalg.LinAlgError:  # a degenerate sample set: keep the relative floor
+        return floor, None
+    return max(floor, noise ** 2), noise
 
 
 def make_adam(params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
@@ -129,6 +150,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     x_tr = inputs("train")
     phi_tr = basis("train")
+    floors = [_torque_floor(r) for r in runs]
     auto = torch.tensor([r.loss.pinn and r.loss.weighting == "auto" for r in runs],
                         dtype=dt, device=dev)
     batch = Batch(
@@ -144,8 +166,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         auto=auto,
         length_floor=torch.tensor([(LENGTH_FLOOR * float(np.abs(r.train.length).max())) ** 2
                                    for r in runs], dtype=dt, device=dev),
-        torque_floor=torch.tensor([(TORQUE_FLOOR * float(np.nan_to_num(
-            np.abs(r.train.tau)).max() + 1e-12)) ** 2 for r in runs], dtype=dt, device=dev))
+        torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev))
     x_ev = inputs("eval")
     phi_ev = basis("eval")
     l_ev = _stack([r.eval.length for r in runs], dt, dev)
@@ -211,6 +232,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                         scaling=scalings[i], best_epoch=int(epoch_np[i]),
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
                         epochs=options.epochs, seconds=seconds, schedule=options.schedule,
+                        torque_noise_rms=floors[i][1],
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
             for i, r in enumerate(given)]
