@@ -30,6 +30,7 @@ from physics_ablation import method, recording  # noqa: E402
 from pimbs_learn.data import load_samples, split  # noqa: E402
 from pimbs_learn.io import schema_from_result  # noqa: E402
 from pimbs_learn.losses import REPORT_SCALE  # noqa: E402
+from pimbs_learn.model import Scaling  # noqa: E402
 from pimbs_learn.run import Run, TrainOptions  # noqa: E402
 from pimbs_learn.train import train_runs  # noqa: E402
 
@@ -39,7 +40,7 @@ TENSION_EDGES = (-np.inf, 0.0, 10.0, 30.0, np.inf)  # N outside the training ran
 
 def locate(tr, ev) -> tuple[np.ndarray, np.ndarray]:
     """(nearest-training-pose distance, N outside the training tension range) per eval row."""
-    th_s = np.maximum(np.abs(tr.theta).max(axis=0), 1e-3)
+    th_s = Scaling.from_data(tr.theta, None, tr.length).theta  # the network's θ scale
     d = np.linalg.norm((ev.theta[:, None] - tr.theta[None]) / th_s, axis=-1).min(axis=1)
     lo, hi = tr.tension.min(axis=0), tr.tension.max(axis=0)
     out = np.maximum(lo - ev.tension, ev.tension - hi).max(axis=1)

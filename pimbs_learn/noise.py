@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from pimbs_learn.graph import elastic_basis
+from pimbs_learn.model import Scaling
 
 # Prior variance of the explicit basis coefficients (offset, slope, spring), in scaled units
 # (lengths ≤ 1, x ≤ 1): broad enough not to bias, finite so the evidence is defined.
@@ -99,9 +100,8 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
         theta, tension, length, tau = theta[keep], tension[keep], length[keep], tau[keep]
     s, n = theta.shape
     m = length.shape[1]
-    th_s = np.maximum(np.abs(theta).max(axis=0), 1e-3)
-    l_s = max(float(np.abs(length).max()), 1e-4)
-    f_s = np.full(m, max(float(np.abs(tension).max()), 1.0))
+    scale = Scaling.from_data(theta, tension, length)  # the network's own scales
+    th_s, l_s, f_s = scale.theta, float(scale.length[0]), scale.tension
     x = theta / th_s
     # torque in N·m = −Σ f·∂l/∂θ = −Σ f·(l_s/θ_s,j)·∂l̃/∂x_j; divide τ_j by l_s/θ_s,j so
     # the design needs only f, then restore the unit of σ_τ per joint by the same factor
@@ -117,7 +117,6 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
                      dtype=torch.float64, requires_grad=True)
     opt = torch.optim.Adam([z], lr=0.05)
     is_len = torch.arange(len(y)) < n_len
-
     # floors keep the covariance well conditioned where a noise would fit exactly
     low = torch.tensor([-12.0, -5.0, math.log(1e-7), math.log(1e-7 * tau_rms)],
                        dtype=torch.float64)
@@ -137,7 +136,7 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
         opt.step()
     with torch.no_grad():
         final = float(nll())
-        amp, ell, sl, st = torch.exp(torch.maximum(z, low)).tolist()
+        _, ell, sl, st = torch.exp(torch.maximum(z, low)).tolist()
     torque_rms = float(st * np.sqrt(np.mean(t_unit**2)))
     return NoiseEstimate(length_rms=sl * l_s, torque_rms=torque_rms, length_scale=ell,
                          evidence=-final / len(y))

@@ -38,7 +38,7 @@ LENGTH_FLOOR = 1e-4
 TORQUE_FLOOR = 1e-3
 
 
-def _torque_floor(r: Run) -> tuple[float, float | None]:
+def _torque_floor(r: Run, auto: bool) -> tuple[float, float | None]:
     """(floor of mse_τ, the evidence's torque noise rms or None) of one run.
 
     With the automatic weight the floor is also the torque noise that a smooth model of
@@ -47,7 +47,7 @@ def _torque_floor(r: Run) -> tuple[float, float | None]:
     balance is off (friction, offsets) the physics weight backs off by itself.
     """
     floor = (TORQUE_FLOOR * float(np.nan_to_num(np.abs(r.train.tau)).max() + 1e-12)) ** 2
-    if not (r.loss.pinn and r.loss.weighting == "auto"):
+    if not auto:
         return floor, None
     t = r.train
     try:
@@ -150,9 +150,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
     x_tr = inputs("train")
     phi_tr = basis("train")
-    floors = [_torque_floor(r) for r in runs]
-    auto = torch.tensor([r.loss.pinn and r.loss.weighting == "auto" for r in runs],
-                        dtype=dt, device=dev)
+    is_auto = [r.loss.pinn and r.loss.weighting == "auto" for r in runs]
+    floors = [_torque_floor(r, a) for r, a in zip(runs, is_auto, strict=True)]
     batch = Batch(
         x=torch.cat([x_tr, torch.zeros_like(x_tr[:, :1])], dim=1),  # row B: h(0, 0)
         length=_stack([r.train.length for r in runs], dt, dev),
@@ -163,7 +162,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev),
         phi=None if phi_tr is None else torch.cat([phi_tr, torch.zeros_like(phi_tr[:, :1])],
                                                   dim=1),
-        auto=auto,
+        auto=torch.tensor(is_auto, dtype=dt, device=dev),
         length_floor=torch.tensor([(LENGTH_FLOOR * float(np.abs(r.train.length).max())) ** 2
                                    for r in runs], dtype=dt, device=dev),
         torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev))
