@@ -28,8 +28,35 @@ COMMANDS: dict[str, str] = {
 }
 
 
+def _one_line_usage(exc: click.UsageError) -> click.ClickException:
+    """A usage error (bad option value, missing argument or path) as every other user error:
+    one ``Error:`` line that names the command's --help, exit status 1.
+
+    click's own form (usage, a hint, a blank line, then the error, exit status 2) makes a
+    mistyped option look different from every other mistake and buries the line that says
+    what is wrong.
+    """
+    where = exc.ctx.command_path if exc.ctx is not None else "pimbs"
+    message = " ".join(exc.format_message().split())
+    return click.ClickException(f"{message} (see `{where} --help`)")
+
+
 class LazyGroup(click.Group):
-    """A click group whose subcommands are imported on first use."""
+    """A click group whose subcommands are imported on first use, and whose usage errors
+    read like every other error of the CLI (see :func:`_one_line_usage`)."""
+
+    def make_context(self, info_name: str | None, args: list[str],
+                     parent: click.Context | None = None, **extra) -> click.Context:
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as exc:
+            raise _one_line_usage(exc) from exc
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:
+            raise _one_line_usage(exc) from exc
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(COMMANDS)
@@ -44,7 +71,11 @@ class LazyGroup(click.Group):
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="pimbs")
 def main() -> None:
-    """PIMBS: muscle boards, body-schema data, physics-informed learning, mismatch diagnosis."""
+    """PIMBS: muscle boards, body-schema data, physics-informed learning, mismatch diagnosis.
+
+    Exit status: 0 done, 1 stopped by an error (one line says what is wrong and what to
+    do; a bad option or a missing file alike), 130 interrupted (Ctrl-C).
+    """
 
 
 if __name__ == "__main__":

@@ -31,7 +31,9 @@ DEFAULT_LOSS = "basic+const+pinn"
               help="start from the robot description's model (the recording's robot or "
                    "--robot) and learn its correction; skipped with a note if unavailable")
 @click.option("--n-train", type=click.IntRange(min=1), default=None,
-              help="train on N rows drawn with --seed; evaluate on the rest (or on --eval)")
+              help="train on N rows drawn with --seed; evaluate on the rest (or on --eval) "
+                   "[default: 80 %% of the rows, drawn with --seed; the output names the "
+                   "rows that evaluate]")
 @click.option("--eval", "eval_path", type=click.Path(path_type=Path), default=None,
               help="evaluate on this recording (same joints and muscles)")
 @click.option("--epochs", type=click.IntRange(min=1), default=20000, show_default=True)

@@ -19,6 +19,7 @@ from pimbs_learn.data import (
     load_samples,
     split,
 )
+from pimbs_learn.default_split import default_n_train, split_note
 from pimbs_learn.graph import MLP
 from pimbs_learn.losses import REPORT_SCALE, LossConfig
 from pimbs_learn.prior import PriorUnavailable, load_prior
@@ -32,7 +33,8 @@ def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
     """Build the run `pimbs train` asked for.
 
     With --eval the model is evaluated on that recording (trained on all of DATA, or on
-    n_train rows of it); without, n_train rows are drawn (seeded) and the rest evaluates.
+    n_train rows of it); without, n_train rows are drawn (seeded) and the rest evaluates;
+    without either, 80 % of the rows are drawn (seeded) and ``note`` hears which evaluate.
     A ``robot`` is always checked against DATA; ``note`` hears when it is not needed.
     With ``prior`` the robot description (``robot``, else the recording's robot) is the
     prior when it loads and matches; otherwise training goes on without one and ``note``
@@ -59,8 +61,9 @@ def prepare_run(data: str | Path, loss: LossConfig, atl: bool = True,
                 samples.n_samples)[:n_train]))
     else:
         if n_train is None:
-            raise LearnError("give --n-train N (train on N rows, evaluate on the rest) or "
-                             "--eval FILE (a separate evaluation recording)")
+            n_train = default_n_train(samples.n_samples, samples.path)
+            if note is not None:
+                note(split_note(samples.n_samples, n_train, seed))
         tr, ev = split(samples, n_train, seed)
     _check_tension(tr, atl, loss)
     if loss.pinn:

@@ -277,7 +277,7 @@ def test_full_disk_keeps_what_was_written(tmp_path, monkeypatch):
 def test_user_errors_say_what_to_do(tmp_path, monkeypatch):
     out = tmp_path / "e.parquet"
     res = _collect(out, "--fault", "silent-board:m1@5", port="can0")
-    assert res.exit_code == 2 and "simulated arm only" in res.output
+    assert res.exit_code == 1 and "simulated arm only" in res.output
     res = _collect(out, "--fault", "silent-board:m9@5")
     assert res.exit_code == 1 and "unknown muscle 'm9'" in res.output
     # a bus where no board answers (python-can config from the environment)

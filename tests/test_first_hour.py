@@ -1,5 +1,5 @@
 """A new user's first hour (issue 14): every wrong input ends in one line naming the thing
-and what to do, with exit status 1 (2 for a bad option), nothing on disk changed or lost;
+and what to do, with exit status 1 (a bad option too), nothing on disk changed or lost;
 logged runs show progress; the diagnosis figure shows the fit improve.
 
 Runs are tiny (a few samples, a few hundred epochs) so the file adds seconds, and nothing
@@ -173,10 +173,10 @@ def test_train_without_out_says_so_before_training_and_logs_progress(recording):
 
 def test_experiment_blames_the_right_option(tmp_path):
     code, out = _run("experiment", "--n-train", 7, "--out", tmp_path / "e")
-    assert code == 2 and "--n-train" in out and "--tables" not in out
+    assert code == 1 and "--n-train" in out and "--tables" not in out
     assert "7" in out and "table 1: 3, 5, 10;" in out
     code, out = _run("experiment", "--tables", "4", "--out", tmp_path / "e")
-    assert code == 2 and "--tables" in out
+    assert code == 1 and "--tables" in out
     assert not (tmp_path / "e").exists()
 
 

@@ -51,4 +51,4 @@ def test_a_joint_that_cannot_be_turned_both_ways_is_shown_with_its_poses(tmp_pat
 
 def test_bad_pose_is_one_line():
     res = CliRunner().invoke(main, ["robot", "two-link-4-muscle", "--pose", "wrist=1"])
-    assert res.exit_code == 2 and "'wrist' is not a driven joint" in res.output
+    assert res.exit_code == 1 and "'wrist' is not a driven joint" in res.output
