@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pimbs_calibration.xacro_check import live_xacro
+
 UNLIMITED = 1e6  # rad: the limit written for a continuous joint (pinocchio needs a number)
 _MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -67,11 +69,17 @@ class ReducedModel:
 
 
 def refuse_xacro(urdf_path: Path, text: str) -> None:
-    """A ``.xacro`` file is a macro program, not a URDF: say how to expand it."""
-    if urdf_path.name.endswith(".xacro") or "xmlns:xacro" in text or "<xacro:" in text:
+    """A file with live xacro is a macro program, not a URDF: say how to expand it.
+
+    A declared ``xmlns:xacro`` or xacro left in comments (what xacro's own output keeps) is
+    not refused: see :mod:`xacro_check`.
+    """
+    live = live_xacro(text)
+    if live is not None:
         out = urdf_path.name.removesuffix(".xacro")
         out = out if out.endswith(".urdf") else out + ".urdf"
-        raise UrdfError(f"{urdf_path} is a xacro file, not a URDF; expand it first with "
+        raise UrdfError(f"{urdf_path} is a xacro file ({live}), not a URDF; expand it first "
+                        f"with "
                         f"`xacro {urdf_path.name} > {out}` (ROS's xacro, or `pip install "
                         f"xacro`) and point 'urdf' at {out}")
 
