@@ -10,7 +10,7 @@ log had nothing (temperatures).
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,15 +19,19 @@ import numpy as np
 from pimbs_calibration.arm_model import ArmModel
 from pimbs_calibration.recording import make_meta
 from pimbs_import.bagread import LogError, read_series
+from pimbs_import.checks import check_readings, check_rows
 from pimbs_import.held import align, held_poses
 from pimbs_import.mapping import LogMapping
 
 
 def import_log(log: Path, arm: ArmModel, mapping: LogMapping,
-               progress: Callable[[int, int], None] | None = None
+               progress: Callable[[int, int], None] | None = None, *,
+               keep_out_of_range: bool = False, msg_dirs: Sequence[Path] = ()
                ) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(columns, metadata) of the recording made from ``log``."""
-    series = read_series(log, mapping, arm.joints, arm.muscles, progress)
+    """(columns, metadata) of the recording made from ``log``; readings and rows the robot
+    cannot have are refused unless ``keep_out_of_range`` (:mod:`pimbs_import.checks`)."""
+    series = read_series(log, mapping, arm.joints, arm.muscles, progress, msg_dirs)
+    flags = check_readings(log, series, keep_out_of_range)
     aligned = align(series, str(log))
     poses = held_poses(aligned, mapping.settle)
     if not poses:
@@ -43,6 +47,9 @@ def import_log(log: Path, arm: ArmModel, mapping: LogMapping,
         return np.stack([values[p.start:p.stop + 1].mean(axis=0) for p in poses])
 
     theta = mean(aligned.theta)
+    tension = mean(aligned.tension)
+    flags.update(check_rows(log, arm.joints, arm.muscles, arm.joint_limits, theta, tension,
+                            keep_out_of_range))
     temperature_note = "from the log"
     if aligned.temperature is not None:
         temperature = mean(aligned.temperature)
@@ -53,7 +60,7 @@ def import_log(log: Path, arm: ArmModel, mapping: LogMapping,
     ns = np.array([aligned.time[p.stop] for p in poses], dtype=np.int64)
     data = {"sample": np.arange(len(poses)), "time": ns.astype("datetime64[ns]").astype(
                 "datetime64[us]"),
-            "theta": theta, "theta_command": theta.copy(), "tension": mean(aligned.tension),
+            "theta": theta, "theta_command": theta.copy(), "tension": tension,
             "length": mean(aligned.length), "temperature": temperature,
             "approach": np.stack([p.approach for p in poses]).astype(np.int8),
             "tau_gravity": arm.gravity_torque(theta),
@@ -68,5 +75,6 @@ def import_log(log: Path, arm: ArmModel, mapping: LogMapping,
                      "(a log has no commands)",
                      log_span_s=float((aligned.time[-1] - aligned.time[0]) * 1e-9),
                      imported=dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-                     joint_range=arm.joint_range.tolist(), K=arm.K.tolist())
+                     joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
+                     **({"import_flags": flags} if flags else {}))
     return data, meta

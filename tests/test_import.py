@@ -107,7 +107,8 @@ def test_mapping_selects_topics_fields_orders_scales_and_names(tmp_path, arm):
 
 @pytest.mark.parametrize("mapping,message", [
     ({"tension": {"topic": "/loadcells"}},
-     "no topic /loadcells for tension (the log has: /joint_states (sensor_msgs/msg/JointState)"),
+     "no topic /loadcells for tension (the log has 3 topic(s): /joint_states "
+     "(sensor_msgs/msg/JointState)"),
     ({"temperature": {"topic": "/joint_states"}},
      "topic /joint_states (temperature) has type sensor_msgs/msg/JointState, expected "
      "std_msgs/msg/Float64MultiArray"),
@@ -142,7 +143,7 @@ def test_not_a_log_and_existing_output(tmp_path, arm):
     junk = tmp_path / "junk.bag"
     junk.write_bytes(b"not a bag")
     res = _import(junk, tmp_path / "x.parquet")
-    assert res.exit_code == 1 and "cannot open as a ROS 1 .bag" in res.output
+    assert res.exit_code == 1 and f"{junk}: not a readable ROS 1 .bag" in res.output
     log, _ = _log(tmp_path, arm, poses=2)
     (tmp_path / "x.parquet").write_bytes(b"keep me")
     res = _import(log, tmp_path / "x.parquet")
