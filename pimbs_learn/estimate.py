@@ -27,6 +27,16 @@ class LengthModel(Protocol):
     def jacobian(self, theta: Any, f: Any = None) -> np.ndarray: ...
 
 
+def _length_and_jacobian(model: LengthModel, theta: np.ndarray, f: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Both from one evaluation where the model offers it (a network computes G alongside
+    the lengths anyway), else from its two calls."""
+    both = getattr(model, "length_and_jacobian", None)
+    if both is not None:
+        return both(theta, f)
+    return model.length(theta, f), model.jacobian(theta, f)
+
+
 class GeometricSchema:
     """The robot description's model (``ArmModel``) behind the body-schema API.
 
@@ -78,9 +88,9 @@ def _levenberg_marquardt(model: LengthModel, target: np.ndarray, f: np.ndarray,
                          iterations: int, tol: float = 1e-10) -> Estimate:
     """Batched projected LM: every row is its own problem with its own damping."""
     theta = np.clip(theta, lo, hi)
-    r = model.length(theta, f) - target
+    h, jac = _length_and_jacobian(model, theta, f)
+    r = h - target
     cost = np.einsum("bm,bm->b", r, r)
-    jac = model.jacobian(theta, f)
     lam = np.full(len(theta), 1e-3)
     active = np.ones(len(theta), bool)
     eye = np.eye(theta.shape[1])
@@ -96,17 +106,17 @@ def _levenberg_marquardt(model: LengthModel, target: np.ndarray, f: np.ndarray,
                    )[:, :, None] * eye
         step = -np.linalg.solve(a, grad[:, :, None])[:, :, 0]
         cand = np.clip(theta[idx] + step, lo, hi)
-        rc = model.length(cand, f[idx]) - target[idx]
+        # G of the candidate comes with its lengths: kept where the step is accepted
+        hc, jc = _length_and_jacobian(model, cand, f[idx])
+        rc = hc - target[idx]
         cc = np.einsum("bm,bm->b", rc, rc)
         ok = cc < cost[idx]
         moved = np.abs(cand - theta[idx]).max(axis=1)
         acc = idx[ok]
-        theta[acc], r[acc], lam[acc] = cand[ok], rc[ok], lam[acc] / 3.0
+        theta[acc], r[acc], lam[acc], jac[acc] = cand[ok], rc[ok], lam[acc] / 3.0, jc[ok]
         small = ok & ((moved < tol) | (cost[idx] - cc < 1e-12 * cost[idx]))
         cost[acc] = cc[ok]
         lam[idx[~ok]] *= 5.0
-        if acc.size:
-            jac[acc] = model.jacobian(theta[acc], f[acc])
         active[idx[small | (lam[idx] > 1e10)]] = False
     return Estimate(theta, np.sqrt(cost / target.shape[1]))
 
@@ -123,7 +133,8 @@ class JointAngleReport:
     """Estimated joint angles of some samples by a learned schema and the geometric model.
 
     ``rms_error_deg`` (N,) against the recorded θ; the geometric fields are None where no
-    robot description was available to build the geometric model.
+    robot description was available to build the geometric model. ``rows``: the indices of
+    the samples estimated (all of them unless the report was bounded).
     """
 
     joints: list[str]
@@ -134,6 +145,7 @@ class JointAngleReport:
     geometric_rms_error_deg: np.ndarray | None
     joint_range: np.ndarray
     range_source: str
+    rows: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         def listed(x: np.ndarray | None) -> list | None:
@@ -144,6 +156,7 @@ class JointAngleReport:
                 "residual_rms_m": float(np.sqrt(np.mean(self.residual_m ** 2))),
                 "joint_range": listed(self.joint_range), "joint_range_from": self.range_source,
                 "theta_estimate": listed(self.theta),
+                "rows": listed(self.rows),
                 "geometric_theta_estimate": listed(self.geometric_theta)}
 
     def line(self) -> str:
@@ -177,12 +190,20 @@ def geometric_model(robot: str | None, joints: list[str], muscles: list[str]) ->
 
 def joint_angle_report(schema: Any, theta: np.ndarray, tension: np.ndarray,
                        length: np.ndarray, robot: str | None = None, starts: int = 5,
-                       seed: int = 0) -> JointAngleReport:
+                       seed: int = 0, max_rows: int | None = None) -> JointAngleReport:
     """Estimate θ from (l, f) of each sample with ``schema`` and with the geometric model.
 
     The search range is the robot's joint limits where its description is available (the
-    arm can be anywhere it can physically go), else the schema's training range.
+    arm can be anywhere it can physically go), else the schema's training range. With
+    ``max_rows`` at most that many samples (a seeded draw, in their order) are estimated:
+    a summary after training must not cost more than the training as the data set grows.
     """
+    from pimbs_learn.prior_schema import batched_geometric
+
+    rows = None
+    if max_rows is not None and len(theta) > max_rows:
+        rows = np.sort(np.random.default_rng(seed).permutation(len(theta))[:max_rows])
+        theta, tension, length = theta[rows], tension[rows], length[rows]
     arm = geometric_model(robot or schema.meta.get("robot"), schema.joints, schema.muscles)
     if arm is not None:
         joint_range, source = arm.joint_limits, f"joint limits of {arm.robot.name}"
@@ -191,8 +212,9 @@ def joint_angle_report(schema: Any, theta: np.ndarray, tension: np.ndarray,
     est = estimate_joint_angles(schema, length, tension, joint_range, starts, seed)
     geo_theta = geo_rms = None
     if arm is not None:
-        geo_theta = estimate_joint_angles(GeometricSchema(arm), length, tension, joint_range,
-                                          starts, seed).theta
+        geo_theta = estimate_joint_angles(batched_geometric(arm), length, tension,
+                                          joint_range, starts, seed).theta
         geo_rms = rms_error_deg(geo_theta, theta)
     return JointAngleReport(list(schema.joints), est.theta, rms_error_deg(est.theta, theta),
-                            est.residual, geo_theta, geo_rms, np.asarray(joint_range), source)
+                            est.residual, geo_theta, geo_rms, np.asarray(joint_range), source,
+                            rows)

@@ -143,6 +143,12 @@ class BodySchema:
         single, _, g = self._evaluate(theta, f)
         return g[0] if single else g
 
+    def length_and_jacobian(self, theta: Any, f: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """(l, G) from one evaluation: the graph computes both anyway, so an estimator that
+        needs both pays once."""
+        single, out, g = self._evaluate(theta, f)
+        return (out[0], g[0]) if single else (out, g)
+
     def torque(self, theta: Any, f: Any) -> np.ndarray:
         """Joint torque the muscles produce, −Gᵀf, (N,) or (B, N), N·m."""
         if f is None:

@@ -31,8 +31,10 @@ from pimbs_learn.model import Scaling
 # Prior variance of the explicit basis coefficients (offset, slope, spring), in scaled units
 # (lengths ≤ 1, x ≤ 1): broad enough not to bias, finite so the evidence is defined.
 _BASIS_PRIOR = 1.0
-# Most observations used for the estimate (S samples give S·(M+N)): the evidence needs a
-# Cholesky of that square, 0.2–5 s for 300 steps on one core; more samples are subsampled.
+# Most observations used for the estimate (S samples give S·(M+N)): each of the 300 steps
+# needs a Cholesky of that square and its inverse, so this cap bounds the estimate's time
+# (about 2.5 s on one core at the cap, 0.3 s at 180 observations); more samples are
+# subsampled.
 MAX_OBSERVATIONS = 400
 _STEPS = 300
 
@@ -47,16 +49,29 @@ class NoiseEstimate:
     evidence: float  # log marginal likelihood per observation
 
 
-def _kernel_blocks(x: torch.Tensor, ell: torch.Tensor
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _kernel_blocks(x: torch.Tensor, ell: float
+                   ) -> tuple[tuple[torch.Tensor, ...], tuple[torch.Tensor, ...]]:
     """Unit-amplitude RBF covariances of g (S,S), ∂g/∂x with g (S,N,S), ∂g with ∂g
-    (S,N,S,N) at the S points x (S,N)."""
+    (S,N,S,N) at the S points x (S,N), and their derivatives with respect to log ℓ.
+
+    With q = |x_i − x_k|²/ℓ²: ∂k/∂log ℓ = k·q, ∂kd/∂log ℓ = kd·(q − 2) and
+    ∂kdd/∂log ℓ = (−2I/ℓ² + 4·ddᵀ/ℓ⁴)·k + (I/ℓ² − ddᵀ/ℓ⁴)·k·q.
+    """
     d = x[:, None, :] - x[None, :, :]  # (S,S,N) x_i − x_k
-    k = torch.exp(-0.5 * (d * d).sum(-1) / ell**2)
+    q = (d * d).sum(-1) / ell**2
+    k = torch.exp(-0.5 * q)
     kd = -(d / ell**2) * k[..., None]  # cov(∂_j g(x_i), g(x_k)) (S,S,N)
     eye = torch.eye(x.shape[1], dtype=x.dtype)
-    kdd = (eye / ell**2 - d[..., :, None] * d[..., None, :] / ell**4) * k[..., None, None]
-    return k, kd.permute(0, 2, 1), kdd.permute(0, 2, 1, 3)
+    outer = d[..., :, None] * d[..., None, :] / ell**4
+    shape = (eye / ell**2 - outer)
+    kdd = shape * k[..., None, None]
+    dkdd = (4 * outer - 2 * eye / ell**2) * k[..., None, None] + kdd * q[..., None, None]
+    dkd = kd * (q - 2)[..., None]
+
+    def arranged(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return a, b.permute(0, 2, 1), c.permute(0, 2, 1, 3)
+
+    return arranged(k, kd, kdd), arranged(k * q, dkd, dkdd)
 
 
 def _basis(x: np.ndarray, tension: np.ndarray, tension_s: np.ndarray) -> torch.Tensor:
@@ -77,17 +92,48 @@ def _basis(x: np.ndarray, tension: np.ndarray, tension_s: np.ndarray) -> torch.T
     return torch.as_tensor(b)
 
 
-def _gp_covariance(x: torch.Tensor, f: torch.Tensor, ell: torch.Tensor) -> torch.Tensor:
-    """Unit-amplitude covariance of the observations from the GP part g:
+def _gp_covariance(blocks: tuple[torch.Tensor, ...], f: torch.Tensor) -> torch.Tensor:
+    """Unit-amplitude covariance of the observations from the GP part g, from the kernel
+    blocks k (S,S), kd (S,N,S), kdd (S,N,S,N) (or their derivatives: the map is linear):
     cov(l_im, l_km') = δ_mm'·k_ik, cov(τ_ij, l_km) = −f_im·∂_j k_ik,
     cov(τ_ij, τ_kl) = (f_i·f_k)·∂_j∂'_l k_ik."""
-    s, n = x.shape
+    k, kd, kdd = blocks
+    s, n = kd.shape[:2]
     m = f.shape[1]
-    k, kd, kdd = _kernel_blocks(x, ell)  # (S,S), (S,N,S), (S,N,S,N)
-    ll = torch.kron(k, torch.eye(m, dtype=x.dtype))
+    ll = torch.kron(k, torch.eye(m, dtype=k.dtype))
     tl = (-f[:, None, None, :] * kd[..., None]).reshape(s * n, s * m)
     tt = ((f @ f.T)[:, None, :, None] * kdd).reshape(s * n, s * n)
     return torch.cat([torch.cat([ll, tl.T], 1), torch.cat([tl, tt], 1)], 0)
+
+
+def _nll_and_grad(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.Tensor,
+                  y: torch.Tensor, base: torch.Tensor, is_len: torch.Tensor,
+                  with_grad: bool = True) -> tuple[float, np.ndarray]:
+    """Negative log evidence of the log hyperparameters z and its gradient, by hand.
+
+    ∂nll/∂z_i = ½·Σ (K⁻¹ − ααᵀ) ⊙ ∂K/∂z_i with α = K⁻¹y: one Cholesky and its inverse per
+    step, where autograd through the Cholesky cost five times as much.
+    """
+    u = np.maximum(z, low)
+    amp, ell, sl, st = np.exp(u)
+    blocks, dblocks = _kernel_blocks(xt, float(ell))
+    kgp = _gp_covariance(blocks, ft)
+    noise = torch.where(is_len, sl**2, st**2)
+    cov = amp**2 * kgp + base + torch.diag(noise + 1e-10)
+    chol = torch.linalg.cholesky(cov)
+    alpha = torch.cholesky_solve(y[:, None], chol)[:, 0]
+    nll = float(0.5 * (y @ alpha) + torch.log(torch.diagonal(chol)).sum())
+    if not with_grad:
+        return nll, np.zeros_like(z)
+    w = torch.cholesky_inverse(chol) - alpha[:, None] * alpha[None, :]  # K⁻¹ − ααᵀ
+    wd = torch.diagonal(w)
+    grad = np.array([
+        float((w * kgp).sum()) * amp**2,  # ∂K/∂log s = 2s²·K_gp, times ½
+        0.5 * amp**2 * float((w * _gp_covariance(dblocks, ft)).sum()),
+        float(wd[is_len].sum()) * sl**2,  # ∂K/∂log σ = 2σ² on its diagonal, times ½
+        float(wd[~is_len].sum()) * st**2])
+    # torch.maximum's subgradient, as autograd took it: 1 above the floor, ½ at it
+    return nll, grad * np.where(z > low, 1.0, np.where(z == low, 0.5, 0.0))
 
 
 def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
@@ -113,30 +159,21 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
     base = b @ b.T * _BASIS_PRIOR
     tau_rms = float(np.sqrt(np.mean((tau / t_unit) ** 2))) + 1e-12
     # log hyperparameters: amplitude s, length-scale ℓ, σ_l (scaled), σ_τ (scaled units)
-    z = torch.tensor([math.log(0.1), math.log(1.0), math.log(1e-3), math.log(0.1 * tau_rms)],
-                     dtype=torch.float64, requires_grad=True)
-    opt = torch.optim.Adam([z], lr=0.05)
+    z = np.array([math.log(0.1), math.log(1.0), math.log(1e-3), math.log(0.1 * tau_rms)])
     is_len = torch.arange(len(y)) < n_len
     # floors keep the covariance well conditioned where a noise would fit exactly
-    low = torch.tensor([-12.0, -5.0, math.log(1e-7), math.log(1e-7 * tau_rms)],
-                       dtype=torch.float64)
-
-    def nll() -> torch.Tensor:
-        amp, ell, sl, st = torch.exp(torch.maximum(z, low))
-        noise = torch.where(is_len, sl**2, st**2)
-        cov = amp**2 * _gp_covariance(xt, ft, ell) + base + torch.diag(noise + 1e-10)
-        chol = torch.linalg.cholesky(cov)
-        alpha = torch.cholesky_solve(y[:, None], chol)
-        return 0.5 * (y @ alpha[:, 0]) + torch.log(torch.diagonal(chol)).sum()
-
-    for _ in range(_STEPS):
-        opt.zero_grad()
-        loss = nll()
-        loss.backward()
-        opt.step()
-    with torch.no_grad():
-        final = float(nll())
-        _, ell, sl, st = torch.exp(torch.maximum(z, low)).tolist()
+    low = np.array([-12.0, -5.0, math.log(1e-7), math.log(1e-7 * tau_rms)])
+    # Adam (lr 0.05, torch's defaults otherwise), written out for four numbers
+    m1, m2 = np.zeros(4), np.zeros(4)
+    b1, b2, lr, eps = 0.9, 0.999, 0.05, 1e-8
+    for step in range(1, _STEPS + 1):
+        _, g = _nll_and_grad(z, low, xt, ft, y, base, is_len)
+        m1 = b1 * m1 + (1 - b1) * g
+        m2 = b2 * m2 + (1 - b2) * g * g
+        denom = np.sqrt(m2) / math.sqrt(1 - b2**step) + eps
+        z = z - (lr / (1 - b1**step)) * m1 / denom
+    final, _ = _nll_and_grad(z, low, xt, ft, y, base, is_len, with_grad=False)
+    _, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
     torque_rms = float(st * np.sqrt(np.mean(t_unit**2)))
     return NoiseEstimate(length_rms=sl * l_s, torque_rms=torque_rms, length_scale=ell,
                          evidence=-final / len(y))
