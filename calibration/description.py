@@ -128,6 +128,9 @@ class RobotDescription(_ArrayFieldsEq):
     muscles: tuple[MuscleSpec, ...]
     locked: tuple[tuple[str, float], ...] = ()  # joints not driven, and the value they hold
     followers: tuple[tuple[str, str, float, float], ...] = ()  # mimic, leader, multiplier, c
+    # an MJCF whose spatial tendons are the muscles (then urdf_path is that file too and the
+    # muscles' via-point paths are empty: MuJoCo routes them); None for URDF + via points
+    mjcf_path: Path | None = None
 
 
 def builtin_robots() -> list[str]:

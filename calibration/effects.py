@@ -79,6 +79,10 @@ class Effect:
     # -- the three places an effect acts ------------------------------------------------
     def physics(self, arm: ArmModel) -> ArmModel:
         """The true arm: the model arm changed where this effect changes physics."""
+        if self.name in ("link_mass", "routing") and arm.backend.kind != "urdf":
+            raise EffectSpecError(
+                f"effect {self.name} changes a URDF's masses or via points; {arm.robot.name} "
+                "is an MJCF robot: write the changed arm as a second MJCF instead")
         if self.name == "link_mass":
             return _with_link_mass(arm, self.link or _last_link(arm), self.magnitude)
         if self.name == "elastic_stiffness":
@@ -90,7 +94,7 @@ class Effect:
         if self.name == "routing":
             rng = np.random.default_rng([self.seed, 77])
             return _with_via_point_shifts(arm, rng.normal(0.0, self.magnitude,
-                                                          arm._via_local.shape))
+                                                          arm.backend._via_local.shape))
         return arm
 
     def true_pose(self, arm: ArmModel, theta_cmd: np.ndarray) -> np.ndarray:
@@ -165,18 +169,12 @@ def _with_link_mass(arm: ArmModel, link: str, scale: float) -> ArmModel:
         raise EffectSpecError(f"link '{link}' has no mass on a moving joint in "
                               f"{arm.robot.urdf_path.name}")
     model.inertias[joint] = pin.Inertia(body.mass * scale, body.lever, body.inertia * scale)
-    true_arm = copy.copy(arm)
-    true_arm._model, true_arm._data = model, model.createData()
-    return true_arm
+    return arm.with_backend(arm.backend.fresh(model=model))
 
 
 def _with_via_point_shifts(arm: ArmModel, shifts: np.ndarray) -> ArmModel:
     """Copy of ``arm`` whose via points sit ``shifts`` (V, 3) metres from the model's."""
-    true_arm = copy.copy(arm)
-    true_arm._data = arm._model.createData()
-    true_arm._via_local = arm._via_local + shifts
-    true_arm._h0 = true_arm._length_jacobian(np.zeros(arm.n_joints), jacobian=False)[0]
-    return true_arm
+    return arm.with_backend(arm.backend.fresh(via_local=arm.backend._via_local + shifts))
 
 
 def _index(names: list[str] | tuple[str, ...], name: str, what: str) -> int:

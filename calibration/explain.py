@@ -19,7 +19,7 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[s
     robot = arm.robot
     text = robot.urdf_path.read_text()
     urdf = parse_joints(robot.urdf_path, text)
-    moving = float(sum(inertia.mass for inertia in arm._model.inertias[1:]))
+    moving = float(sum(inertia.mass for inertia in arm.backend._model.inertias[1:]))
     lines = [f"robot {robot.name}: {robot.muscle_path}",
              f"  URDF {robot.urdf_path}",
              f"  total mass {sum(link_masses(text).values()):.4g} kg ({moving:.4g} kg moved by "

@@ -3,7 +3,7 @@
 The arm settles where gravity potential + elastic potentials (+ f_cmd * h_geom for
 tension-controlled muscles, whose motor keeps the tension constant) is minimal within the URDF
 limits. With K = 1000 the elastic terms are exponentially stiff, so a first-order method
-crawls; we use projected Newton with the exact Hessian (elastic stiffness, pinocchio's
+crawls; we use projected Newton with the exact Hessian (elastic stiffness, the backend's
 gravity derivative, tension times wire-path curvature) made positive definite, and a
 backtracking line search on the energy. Warm-started from the previous pose it converges in a
 few steps.
@@ -53,16 +53,16 @@ class _Problem:
     def evaluate(self, theta: np.ndarray) -> _State:
         """Energy and gradient in one kinematics pass (line-search trials are usually kept)."""
         arm = self.arm
-        paths = arm._paths(theta)
-        h = arm._seg_muscle @ paths.seg_len - arm._h0
+        kin = arm.backend.kinematics(theta)
+        h = kin.length - arm._h0
         f, dn = self.tension(h)
         # P(dn) = expm1(K dn)/K - dn for dn > 0: its derivative is the tension f.
         elastic = np.where(self.is_length & (dn > 0), f / self.K - np.maximum(dn, 0.0), 0.0)
         held = np.where(self.is_length, 0.0, self.command * h)
         energy = arm.potential_energy(theta) + float(elastic.sum() + held.sum())
-        G = arm._jacobian(paths)
+        G = kin.jacobian
         g = arm._gravity(theta)
-        return _State(theta, energy, g + G.T @ f, g, G, f, h, dn, paths)
+        return _State(theta, energy, g + G.T @ f, g, G, f, h, dn, kin.cache)
 
     def hessian(self, s: _State) -> np.ndarray:
         """dg/dtheta + G^T diag(K (f + 1)) G (stretched springs) + sum_i f_i d2h_i."""

@@ -30,7 +30,11 @@ class PriorUnavailable(ValueError):
 
 def prior_arrays(arm) -> dict[str, np.ndarray]:  # arm: pimbs_calibration.ArmModel
     """Constants of the geometric model, from pinocchio (joint 0 is the fixed world)."""
-    model = arm._model
+    if arm.backend.kind != "urdf":
+        raise PriorUnavailable(f"{arm.robot.name} is an MJCF robot whose tendons MuJoCo "
+                               "routes; the geometric prior needs a URDF with via points")
+    vb = arm.backend  # the via-point backend holds the pinocchio model and the via points
+    model = vb._model
     nj = model.njoints
     rot0, pos0, axis = np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3))
     rot0[0] = np.eye(3)
@@ -49,19 +53,19 @@ def prior_arrays(arm) -> dict[str, np.ndarray]:  # arm: pimbs_calibration.ArmMod
                                    "prior supports revolute joints only")
         rot0[j] = model.jointPlacements[j].rotation
         pos0[j] = model.jointPlacements[j].translation
-        col = list(arm._iq_cols).index(jm.idx_q)
-        theta_map[j] = arm._S[col]
-        q_offset[j] = arm._offset[col]
+        col = list(vb._iq_cols).index(jm.idx_q)
+        theta_map[j] = vb._S[col]
+        q_offset[j] = vb._offset[col]
     supports = np.zeros((nj, nj))  # supports[k, j]: joint k moves frame j
     for j in range(nj):
         for k in model.supports[j]:
             supports[k, j] = 1.0
-    vj = np.array(arm._joint_ids)[arm._via_joint]
+    vj = np.array(vb._joint_ids)[vb._via_joint]
     return {"rot0": rot0, "pos0": pos0, "axis": axis, "parent": np.array(
         list(model.parents), dtype=np.int64), "theta_map": theta_map, "q_offset": q_offset,
-        "via_joint": vj.astype(np.int64), "via_local": arm._via_local.copy(),
-        "seg_a": arm._seg_a.astype(np.int64), "seg_b": arm._seg_b.astype(np.int64),
-        "seg_muscle": arm._seg_muscle.copy(), "h0": arm._h0.copy(),
+        "via_joint": vj.astype(np.int64), "via_local": vb._via_local.copy(),
+        "seg_a": vb._seg_a.astype(np.int64), "seg_b": vb._seg_b.astype(np.int64),
+        "seg_muscle": vb._seg_muscle.copy(), "h0": arm._h0.copy(),
         "supports": supports, "K": np.asarray(arm.K, dtype=np.float64)}
 
 

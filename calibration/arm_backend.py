@@ -1,0 +1,72 @@
+"""The seam between ``ArmModel`` and whatever computes an arm's geometry and gravity.
+
+``ArmModel`` owns what is the same for every arm (elasticity, the tension QP, static
+equilibrium); a backend owns what depends on how the arm is described: muscle path lengths
+and their Jacobians, gravity. Two backends exist: ``viapoint_backend`` (a URDF through
+pinocchio plus straight wire segments between via points) and ``mujoco_backend`` (an MJCF
+whose spatial tendons MuJoCo itself measures, wrapping included).
+
+Shapes (N driven joints, M muscles), SI units, numpy float64:
+    theta (N,) rad; lengths (M,) m ABSOLUTE (``ArmModel`` subtracts the length at theta = 0);
+    jacobian (M, N) = d length / d theta; gravity (N,) N·m, the torque the muscles must supply
+    (pinocchio's g(theta), MuJoCo's qfrc_bias at zero velocity), so at rest ``-Gᵀf = g``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass
+class Kinematics:
+    """Muscle geometry at one pose. ``cache`` is backend-private data that
+    ``length_hessian`` may reuse (the equilibrium solver asks for both at the same pose)."""
+
+    length: np.ndarray  # (M,) absolute path lengths, m
+    jacobian: np.ndarray | None  # (M, N) d length / d theta, or None if not asked for
+    cache: Any = None
+
+
+@runtime_checkable
+class ArmBackend(Protocol):
+    """What ``ArmModel`` needs from an arm description (single poses; ArmModel batches)."""
+
+    joint_limits: np.ndarray  # (N, 2) hard limits of the driven joints (rad)
+    kind: str  # "urdf" or "mjcf": for messages saying what a command supports
+
+    def kinematics(self, theta: np.ndarray, jacobian: bool = True) -> Kinematics:
+        """Absolute muscle lengths (M,) and, if asked, their Jacobian (M, N)."""
+        ...
+
+    def length_hessian(self, theta: np.ndarray, weight: np.ndarray,
+                       cache: Any = None) -> np.ndarray:
+        """sum_i weight_i d²length_i/dtheta² (N, N), symmetric; ``cache`` from
+        ``kinematics`` at the same theta, or None."""
+        ...
+
+    def gravity(self, theta: np.ndarray) -> np.ndarray:
+        """(N,) generalized gravity g(theta): the joint torque that holds the arm still."""
+        ...
+
+    def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
+        """(N, N) d g / d theta."""
+        ...
+
+    def potential_energy(self, theta: np.ndarray) -> float:
+        """Gravity potential energy (J); its gradient is ``gravity``."""
+        ...
+
+    def moving_mass(self) -> float:
+        """Mass (kg) moved by the driven joints (for the description's explanation)."""
+        ...
+
+    def via_points(self, theta: np.ndarray) -> list[np.ndarray]:
+        """World positions (k_i, 3) of the points each muscle's path runs through (for plots)."""
+        ...
+
+    def link_frames(self, theta: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World (rotation (3, 3), position (3,)) of every link / body (for plots)."""
+        ...
