@@ -142,7 +142,8 @@ class ViaPointBackend:
         with self._lock:
             if jacobian:
                 pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
-                J = data.J[:, self._iv]
+                # (6, nv) always: pinocchio hands a one-joint model's Jacobian back as (6,)
+                J = np.asarray(data.J).reshape(6, -1)[:, self._iv]
             else:
                 pin.forwardKinematics(model, data, q)
             p = self._world_points()

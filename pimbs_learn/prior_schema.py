@@ -30,7 +30,7 @@ class PriorSchema:
         ft = np.zeros((len(th), len(self.muscles))) if f is None else np.broadcast_to(
             np.asarray(f, dtype=np.float64), (len(th), len(self.muscles)))
         with torch.no_grad():
-            h, g = self._prior(torch.from_numpy(th), torch.from_numpy(np.ascontiguousarray(ft)))
+            h, g = self._prior(torch.from_numpy(np.array(th)), torch.from_numpy(np.array(ft)))
         return h.numpy(), g.numpy()
 
     def length(self, theta: Any, f: Any = None) -> np.ndarray:
