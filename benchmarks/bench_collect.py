@@ -23,14 +23,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pimbs_calibration.arm_model import ArmModel  # noqa: E402
-from pimbs_calibration.recording import read_recording  # noqa: E402
+from pimbs_arm.model import ArmModel  # noqa: E402
 from pimbs_hw.collection.move import MoveConfig  # noqa: E402
 from pimbs_hw.collection.plan import CollectionPlan  # noqa: E402
 from pimbs_hw.collection.resume import collection_meta, open_recording  # noqa: E402
 from pimbs_hw.collection.routine import Collector  # noqa: E402
 from pimbs_hw.collection.session import open_link  # noqa: E402
 from pimbs_hw.collection.settle import SettleConfig  # noqa: E402
+from pimbs_recording.format import read_recording  # noqa: E402
 
 
 def run(model: ArmModel, samples: int, speed: float, settle: SettleConfig, out: Path

@@ -40,9 +40,9 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     data = a.data
     if data is None:
-        from pimbs_calibration.arm_model import ArmModel
-        from pimbs_calibration.recording import write_recording
-        from pimbs_calibration.simulate import simulate
+        from pimbs_arm.model import ArmModel
+        from pimbs_recording.format import write_recording
+        from pimbs_sim.simulate import simulate
         data = Path(tempfile.mkdtemp()) / "two-link.parquet"
         write_recording(data, *simulate(ArmModel.load("two-link-4-muscle"), 496, "atl"))
     pool = load_samples(data)

@@ -24,11 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pimbs_calibration.arm_model import ArmModel  # noqa: E402
-from pimbs_calibration.recording import read_recording, write_recording  # noqa: E402
+from pimbs_arm.model import ArmModel  # noqa: E402
 from pimbs_import.convert import import_log  # noqa: E402
 from pimbs_import.mapping import DEFAULT  # noqa: E402
 from pimbs_import.synthetic import LogSpec, write_log  # noqa: E402
+from pimbs_recording.format import read_recording, write_recording  # noqa: E402
 
 
 def main() -> None:

@@ -21,14 +21,14 @@ import torch
 
 
 def tiny_model(tmp: Path, robot: str) -> Path:
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.recording import write_recording
-    from pimbs_calibration.simulate import simulate
+    from pimbs_arm.model import ArmModel
     from pimbs_learn.io import save_model
     from pimbs_learn.losses import LossConfig
     from pimbs_learn.run import TrainOptions
     from pimbs_learn.session import prepare_run
     from pimbs_learn.train import train
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
 
     data, meta = simulate(ArmModel.load(robot), 40, "atl", seed=1)
     write_recording(tmp / "d.parquet", data, meta)

@@ -28,11 +28,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from pimbs_calibration.arm_model import ArmModel  # noqa: E402
-from pimbs_calibration.effects import parse_effect  # noqa: E402
-from pimbs_calibration.recording import write_recording  # noqa: E402
-from pimbs_calibration.simulate import simulate  # noqa: E402
+from pimbs_arm.model import ArmModel  # noqa: E402
 from pimbs_learn.diagnosis.run import diagnose  # noqa: E402
+from pimbs_recording.format import write_recording  # noqa: E402
+from pimbs_sim.effects import parse_effect  # noqa: E402
+from pimbs_sim.simulate import simulate  # noqa: E402
 
 MAGNITUDES = {  # effect: (large, small)
     "tendon_friction": (0.15, 0.05),

@@ -27,15 +27,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from pimbs_calibration.arm_model import ArmModel  # noqa: E402
-from pimbs_calibration.effects import parse_effect  # noqa: E402
-from pimbs_calibration.recording import write_recording  # noqa: E402
-from pimbs_calibration.simulate import simulate  # noqa: E402
+from pimbs_arm.model import ArmModel  # noqa: E402
 from pimbs_learn.diagnosis.run import diagnose, write_corrected  # noqa: E402
 from pimbs_learn.losses import LossConfig  # noqa: E402
 from pimbs_learn.run import TrainOptions  # noqa: E402
 from pimbs_learn.session import prepare_run  # noqa: E402
 from pimbs_learn.train import train  # noqa: E402
+from pimbs_recording.format import write_recording  # noqa: E402
+from pimbs_sim.effects import parse_effect  # noqa: E402
+from pimbs_sim.simulate import simulate  # noqa: E402
 
 
 def main() -> None:

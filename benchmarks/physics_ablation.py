@@ -43,10 +43,10 @@ def recording(arm: str, data_dir: Path) -> Path:
         return path
     data_dir.mkdir(parents=True, exist_ok=True)
     if arm in ("two-link", "five-dof", "two-link-friction", "five-dof-friction"):
-        from pimbs_calibration.arm_model import ArmModel
-        from pimbs_calibration.effects import parse_effect
-        from pimbs_calibration.recording import write_recording
-        from pimbs_calibration.simulate import simulate
+        from pimbs_arm.model import ArmModel
+        from pimbs_recording.format import write_recording
+        from pimbs_sim.effects import parse_effect
+        from pimbs_sim.simulate import simulate
         robot = "two-link-4-muscle" if arm.startswith("two") else "left-arm-5dof"
         eff = (parse_effect("tendon_friction:0.1"),) if arm.endswith("friction") else ()
         data, meta = simulate(ArmModel.load(robot), 496, "atl", seed=0, effects=eff)

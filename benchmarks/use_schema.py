@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import read_recording, write_recording
+from pimbs_arm.model import ArmModel
+from pimbs_recording.format import read_recording, write_recording
 
 DEG = 180.0 / np.pi
 

@@ -100,8 +100,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.poses import replaced_note
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.resume import collection_meta, open_recording
@@ -175,11 +175,11 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
-    from pimbs_calibration.recording import RecordingWriteError
     from pimbs_hw.collection.progress import LiveReporter, LogReporter, summary_lines
     from pimbs_hw.collection.routine import Collector
     from pimbs_hw.collection.session import open_link, stop_advice
     from pimbs_hw.safety import SafetyStop
+    from pimbs_recording.format import RecordingWriteError
 
     console = Console(stderr=True)
     collector = None

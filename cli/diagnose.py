@@ -32,10 +32,10 @@ from pimbs_cli.common import check_output, force_option, user_errors
 def command(real: Path, reference: Path | None, robot: str | None, json_out: Path | None,
             plots: Path | None, corrected: Path | None, force: bool) -> None:
     """Why does REAL disagree with the simulation? Name the physics the model left out."""
-    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.diagnosis.plots import PLOT_FILES
     from pimbs_learn.diagnosis.report import text_report
     from pimbs_learn.diagnosis.run import diagnose, write_corrected
+    from pimbs_recording.atomic import write_text_atomic
 
     _check_outputs(json_out, plots, corrected, force, PLOT_FILES)
     result, internals = diagnose(

@@ -35,10 +35,10 @@ def command(model: Path, data: Path, robot: str | None, starts: int, json_path: 
     import numpy as np
     import torch
 
-    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn import load_body_schema
     from pimbs_learn.data import LearnError, load_samples
     from pimbs_learn.estimate import joint_angle_report
+    from pimbs_recording.atomic import write_text_atomic
 
     for path, option in ((json_path, "--json"), (plot_path, "--plot")):
         if path is not None:

@@ -50,10 +50,10 @@ def command(log: Path, robot: str | None, out: Path | None, map_path: Path | Non
                                "to it by name")
     if out is None:
         raise click.UsageError("--out is required: the recording to write (.parquet)")
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.recording import write_recording
+    from pimbs_arm.model import ArmModel
     from pimbs_import.convert import import_log
     from pimbs_import.mapping import load_mapping
+    from pimbs_recording.format import write_recording
 
     check_output(out, force=force, what="recording")
     arm = ArmModel.load(robot)

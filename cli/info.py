@@ -19,7 +19,7 @@ def _range(values: np.ndarray) -> str:
 
 def summary(path: Path) -> str:
     """Human-readable summary of a recording (raises RecordingError if invalid)."""
-    from pimbs_calibration.recording import read_recording
+    from pimbs_recording.format import read_recording
 
     rec = read_recording(path)
     t = rec.time

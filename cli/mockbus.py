@@ -73,9 +73,9 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             conceal: tuple[str, ...], seed: int, speed: float, duration: float | None) -> None:
     """Run simulated muscle boards of ROBOT on a pty or a local CAN channel until Ctrl-C."""
     from pimbs_calibration.description import load_robot
-    from pimbs_calibration.effects import parse_effect
     from pimbs_hw.errors import PortError
     from pimbs_hw.mock import MockArm, parse_faults
+    from pimbs_sim.effects import parse_effect
 
     link = check_port("pty" if serial else link)
     logging.basicConfig(level=logging.INFO, format="mockbus: %(message)s")

@@ -57,10 +57,10 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
     turned both ways at every checked pose (exit status 1 where it cannot)."""
     import numpy as np
 
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.explain import describe, routing_ok
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.routing import check_poses, routing_report
     from pimbs_calibration.description import load_robot
-    from pimbs_calibration.explain import describe, routing_ok
-    from pimbs_calibration.routing import check_poses, routing_report
 
     if plot is not None:
         check_output(plot, force=force, what="picture", option="--plot")
@@ -70,7 +70,7 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
     for line in describe(arm, report):
         click.echo(line)
     if plot is not None:
-        from pimbs_calibration.routing_plot import plot_routing
+        from pimbs_arm.picture import plot_routing
 
         home = np.clip(np.zeros(arm.n_joints), arm.joint_limits[:, 0], arm.joint_limits[:, 1])
         panels = [("home pose", home)] + ([] if other is None else [("given pose", other)])

@@ -30,11 +30,11 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
             conceal: tuple[str, ...], noise: float, force: bool) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.effects import parse_effect
-    from pimbs_calibration.poses import replaced_note
-    from pimbs_calibration.recording import RecordingWriteError, write_recording
-    from pimbs_calibration.simulate import simulate
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.poses import replaced_note
+    from pimbs_recording.format import RecordingWriteError, write_recording
+    from pimbs_sim.effects import parse_effect
+    from pimbs_sim.simulate import simulate
 
     check_output(out, force=force, what="recording")
     arm = ArmModel.load(robot)

@@ -87,13 +87,13 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     import torch
     from rich.console import Console
 
-    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.io import save_model
     from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
     from pimbs_learn.reference import train_reference
     from pimbs_learn.run import TrainOptions
     from pimbs_learn.session import model_error, prepare_run
     from pimbs_learn.train import train
+    from pimbs_recording.atomic import write_text_atomic
 
     if threads:
         torch.set_num_threads(threads)

@@ -30,7 +30,7 @@ from pimbs_cli.common import check_output, force_option, robot_option, user_erro
 def command(port: str, robot: str, calibration: Path | None, yes: bool, force: bool) -> None:
     """Zero every motor encoder at the home pose (all joints 0 rad, wires on their pulleys)."""
 
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
     from pimbs_hw import is_simulated, open_arm
     from pimbs_hw.zeroing import default_path, measure_zero, save
 

@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import make_meta
+from pimbs_arm.model import ArmModel
 from pimbs_import.bagread import LogError, read_series
 from pimbs_import.checks import check_readings, check_rows
 from pimbs_import.held import align, held_poses
 from pimbs_import.mapping import LogMapping
+from pimbs_recording.format import make_meta
 
 
 def import_log(log: Path, arm: ArmModel, mapping: LogMapping,

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_calibration.approach import ApproachTracker
 from pimbs_import.bagread import LogError, Series
 from pimbs_import.mapping import SettleRule
+from pimbs_recording.approach import ApproachTracker
 
 
 @dataclass

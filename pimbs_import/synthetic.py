@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.poses import plan_poses
-from pimbs_calibration.simulate import SensorNoise
+from pimbs_arm.model import ArmModel
+from pimbs_arm.poses import plan_poses
+from pimbs_sim.simulate import SensorNoise
 
 FORMATS = ("ros1", "sqlite3", "mcap")
 

@@ -70,7 +70,7 @@ def file_sha256(path: str | Path) -> str:
 
 def load_samples(path: str | Path) -> Samples:
     """Read and validate a recording (format v1) into Samples; LearnError if unusable."""
-    from pimbs_calibration.recording import RecordingError, read_recording
+    from pimbs_recording.format import RecordingError, read_recording
 
     p = Path(path)
     if not p.is_file():
@@ -91,7 +91,7 @@ def load_samples(path: str | Path) -> Samples:
 def load_robot(robot: str, samples: Samples):
     """The robot description ``robot`` (name or path), refused unless it is the recording's
     arm: same joints and muscles in the same order."""
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
 
     try:
         arm = ArmModel.load(robot)

@@ -177,7 +177,7 @@ def geometric_model(robot: str | None, joints: list[str], muscles: list[str]) ->
     """
     if not robot:
         return None
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
 
     try:
         arm = ArmModel.load(robot)

@@ -8,7 +8,7 @@ Table III: ATL-Map, left-arm-5dof, 496 samples (standing in for the real arm: se
   on), N_train ∈ {10, 30} drawn per seed, the rest is D_eval; Basic, Basic+Const,
   Basic+PINN (α = 1e-5) and Basic+Const+PINN with α ∈ {1e-5, 1e-6, 1e-7, 1e-8}.
 
-Data are made with :func:`pimbs_calibration.simulate.simulate` exactly as ``pimbs simulate`` does
+Data are made with :func:`pimbs_sim.simulate.simulate` exactly as ``pimbs simulate`` does
 (the equivalent command lines are printed and saved), and read back through the recording
 format, so the experiment exercises the same path as a user's `pimbs train`.
 """
@@ -101,9 +101,9 @@ def paper_tables(quick: bool = False) -> list[TableSpec]:
 def simulate_recording(path: Path, robot: str, samples: int, atl: bool, seed: int,
                        noise: float) -> str:
     """Write a recording like `pimbs simulate` would; returns that command line."""
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.recording import write_recording
-    from pimbs_calibration.simulate import simulate
+    from pimbs_arm.model import ArmModel
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
 
     map_kind = "atl" if atl else "al"
     cmd = (f"pimbs simulate --robot {robot} --samples {samples} --map {map_kind} "
@@ -276,8 +276,8 @@ def output_files(specs: list[TableSpec]) -> list[str]:
 def save_outputs(tables: list[TableResult], out_dir: Path, options: TrainOptions,
                  seeds: int) -> list[Path]:
     """tables.md, results.json and the figures, each written atomically; returns them."""
-    from pimbs_calibration.atomic import write_text_atomic
     from pimbs_learn.figures import plot_curves, plot_joint_length
+    from pimbs_recording.atomic import write_text_atomic
 
     out_dir.mkdir(parents=True, exist_ok=True)
     md, js = out_dir / "tables.md", out_dir / "results.json"

@@ -26,7 +26,7 @@ def pyplot():
 def save_png(fig, path: Path, dpi: int) -> Path:
     """Write the figure whole or not at all (a full disk must not leave a truncated PNG
     that looks like a result) and close it."""
-    from pimbs_calibration.atomic import atomic_file
+    from pimbs_recording.atomic import atomic_file
 
     try:
         with atomic_file(path) as fh:
@@ -80,7 +80,7 @@ def plot_joint_length(t: TableResult, n: int, path: Path, seed_index: int = 0,
     For an AL-Map the model's length at θ is h_geom(θ) − Δn(f(θ)) with f from the QP with
     f_min = 0, i.e. exactly what the simulated data hold.
     """
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
     from pimbs_learn.io import schema_from_result
 
     plt = pyplot()

@@ -16,7 +16,6 @@ import numpy as np
 import torch
 from safetensors.numpy import load_file, save
 
-from pimbs_calibration.atomic import write_bytes_atomic, write_text_atomic
 from pimbs_learn.data import LearnError
 from pimbs_learn.domain import Domain
 from pimbs_learn.graph import MLP, SERIES_ELASTIC, STRUCTURES, SchemaGraph
@@ -24,6 +23,7 @@ from pimbs_learn.model import PARAM_NAMES, Params, Scaling
 from pimbs_learn.prior import KEYS as PRIOR_KEYS
 from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import TrainResult
+from pimbs_recording.atomic import write_bytes_atomic, write_text_atomic
 
 WEIGHTS, META = "model.safetensors", "model.json"
 FORMAT = "pimbs-body-schema"

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from pimbs_calibration.atomic import write_bytes_atomic
 from pimbs_learn.io import WEIGHTS, load_body_schema
+from pimbs_recording.atomic import write_bytes_atomic
 
 INPUTS, OUTPUTS = ("theta", "tension"), ("length", "G")
 OPSET = 17

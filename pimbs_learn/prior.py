@@ -141,7 +141,7 @@ class GeometricPrior(torch.nn.Module):
 def load_prior(robot: str, joints: tuple[str, ...], muscles: tuple[str, ...]
                ) -> dict[str, np.ndarray]:
     """Prior constants of a robot NAME|PATH whose joints and muscles match the recording's."""
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
 
     try:
         arm = ArmModel.load(robot)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import quadprog
 
-from pimbs_calibration.recording import make_meta, write_recording
+from pimbs_recording.format import make_meta, write_recording
 
 LINKS = np.array([0.30, 0.25, 0.20])   # m
 COM = np.array([0.15, 0.12, 0.10])     # m from each joint

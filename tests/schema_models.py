@@ -11,14 +11,14 @@ from pathlib import Path
 
 import torch
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import write_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel
 from pimbs_learn.io import save_model
 from pimbs_learn.losses import LossConfig
 from pimbs_learn.run import TrainOptions
 from pimbs_learn.session import prepare_run
 from pimbs_learn.train import train
+from pimbs_recording.format import write_recording
+from pimbs_sim.simulate import simulate
 
 
 def simulated_recording(path: Path, n: int = 40, map_kind: str = "atl", seed: int = 1) -> Path:

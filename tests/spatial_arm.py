@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import quadprog
 
-from pimbs_calibration.recording import make_meta, write_recording
+from pimbs_recording.format import make_meta, write_recording
 
 UPPER, FORE = 0.28, 0.24  # m
 MASS = np.array([1.8, 1.2])  # kg, upper arm and forearm (point masses at mid-link)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pimbs_calibration.arm_model import ArmModel, Equilibrium, InfeasiblePoseError, sample_poses
+from pimbs_arm.model import ArmModel, Equilibrium, InfeasiblePoseError, sample_poses
 from pimbs_calibration.description import DescriptionError, builtin_robots
 
 ROBOTS = Path(__file__).resolve().parents[1] / "calibration" / "robots"

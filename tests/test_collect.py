@@ -17,16 +17,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import pimbs_calibration.recording as recording
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import parse_effect
-from pimbs_calibration.recording import RecordingError, read_recording
-from pimbs_calibration.simulate import simulate
+import pimbs_recording.format as recording
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import Reading
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.collection.settle import SettleConfig, SettleDetector
+from pimbs_recording.format import RecordingError, read_recording
+from pimbs_sim.effects import parse_effect
+from pimbs_sim.simulate import simulate
 
 FAST = ["--mock-speed", "20", "--settle-window", "0.06"]
 

@@ -10,9 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import World, parse_effect
-from pimbs_calibration.recording import read_recording
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_hw.collection.move import MoveConfig
 from pimbs_hw.collection.plan import CollectionPlan
@@ -24,6 +22,8 @@ from pimbs_hw.collection.settle import SettleConfig
 from pimbs_hw.safety import SafetyStop
 from pimbs_learn.domain import Domain
 from pimbs_learn.estimate import GeometricSchema
+from pimbs_recording.format import read_recording
+from pimbs_sim.effects import World, parse_effect
 from tests.schema_models import small_model
 
 ROUTING = "routing:0.004,seed=3"

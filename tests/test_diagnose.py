@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import parse_effect
-from pimbs_calibration.recording import read_recording, write_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_learn.diagnosis.inputs import DiagnosisInputError
 from pimbs_learn.diagnosis.run import diagnose
+from pimbs_recording.format import read_recording, write_recording
+from pimbs_sim.effects import parse_effect
+from pimbs_sim.simulate import simulate
 
 ROBOT = "two-link-4-muscle"
 

@@ -9,15 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import parse_effect
-from pimbs_calibration.recording import read_recording, write_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel
 from pimbs_learn.diagnosis.fit import fit_effects
 from pimbs_learn.diagnosis.inputs import build_physics, pair
 from pimbs_learn.diagnosis.model import Unit, apply_effects, residuals
 from pimbs_learn.diagnosis.report import text_report
 from pimbs_learn.diagnosis.run import diagnose
+from pimbs_recording.format import read_recording, write_recording
+from pimbs_sim.effects import parse_effect
+from pimbs_sim.simulate import simulate
 from tests.foreign_arm import record
 
 ROBOT_2DOF = "two-link-4-muscle"

@@ -8,13 +8,13 @@ import uuid
 import numpy as np
 import pytest
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import load_robot
-from pimbs_calibration.effects import parse_effect
 from pimbs_hw import ArmDriver, PortError, SafetyLimits, open_arm
 from pimbs_hw.mock import MockArm
 from pimbs_hw.safety import TensionLimit, WatchdogExpired
 from pimbs_hw.transport import CanTransport
+from pimbs_sim.effects import parse_effect
 
 ROBOT = "two-link-4-muscle"
 SPEED = 10.0  # settling time constant 7.5 ms

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_learn import load_body_schema
 from pimbs_learn.estimate import GeometricSchema, estimate_joint_angles

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import ALIASES, EFFECT_NAMES, MAGNITUDE_RANGE
-from pimbs_calibration.recording import read_recording, write_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
+from pimbs_recording.format import read_recording, write_recording
+from pimbs_sim.effects import ALIASES, EFFECT_NAMES, MAGNITUDE_RANGE
+from pimbs_sim.simulate import simulate
 
 
 @pytest.fixture(scope="module")
@@ -245,7 +245,7 @@ def test_diagnose_names_the_sample_minimum_not_the_seed(tmp_path, arm):
 
 @pytest.fixture(scope="module")
 def friction_pair(tmp_path_factory, arm) -> tuple[Path, Path]:
-    from pimbs_calibration.effects import parse_effect
+    from pimbs_sim.effects import parse_effect
 
     d = tmp_path_factory.mktemp("diag")
     return (_sim(d / "real.parquet", arm, 60, seed=3,

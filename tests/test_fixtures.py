@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from pimbs_calibration.recording import RecordingError, read_recording
 from pimbs_learn.diagnosis.run import diagnose
+from pimbs_recording.format import RecordingError, read_recording
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 import yaml
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import DescriptionError, load_robot
 from pimbs_calibration.urdf_model import UrdfError, prepared_xml
 

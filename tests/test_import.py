@@ -10,11 +10,11 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from pimbs_calibration.approach import BAND_M
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import read_recording
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_import.synthetic import LogSpec, write_log
+from pimbs_recording.approach import BAND_M
+from pimbs_recording.format import read_recording
 
 ROBOT = "two-link-4-muscle"
 

@@ -217,7 +217,7 @@ def test_bad_inputs_are_refused() -> None:
 
 
 def _write(path, samples: Samples, tau_null: bool = False, zero_tension: bool = False) -> None:
-    from pimbs_calibration.recording import make_meta, write_recording
+    from pimbs_recording.format import make_meta, write_recording
 
     n = samples.n_samples
     data = {"sample": np.arange(n),
@@ -280,10 +280,10 @@ def test_scaling_maps_zero_to_zero() -> None:
 
 
 def test_missing_tau_is_computed_from_the_robot(tmp_path) -> None:
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.recording import write_recording
-    from pimbs_calibration.simulate import simulate
+    from pimbs_arm.model import ArmModel
     from pimbs_cli.train import command
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
 
     data, meta = simulate(ArmModel.load("two-link-4-muscle"), 12, "atl", seed=0, noise=0.0)
     tau = data["tau_gravity"].copy()

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import pimbs_hw.collection.move as move_module
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import load_robot
 from pimbs_hw.collection.link import Reading
 from pimbs_hw.collection.move import Ramp, run_ramp

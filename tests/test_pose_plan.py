@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError, sample_poses
-from pimbs_calibration.poses import PLAN_CEILING, feasible, plan_poses
-from pimbs_calibration.recording import read_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel, InfeasiblePoseError, sample_poses
+from pimbs_arm.poses import PLAN_CEILING, feasible, plan_poses
 from pimbs_cli.main import main
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.collection.session import stop_advice
 from pimbs_hw.safety import TensionLimit
+from pimbs_recording.format import read_recording
+from pimbs_sim.simulate import simulate
 
 ACME = Path(__file__).resolve().parents[1] / "fixtures" / "foreign_arm" / \
     "acme_left_arm.muscles.yaml"

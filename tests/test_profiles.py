@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import read_recording
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_hw import open_arm
 from pimbs_hw.connect import SIMULATED_LIMITS
@@ -26,6 +25,7 @@ from pimbs_hw.safety import (
     Overheat,
     SafetyStop,
 )
+from pimbs_recording.format import read_recording
 from tests.test_collect import _balance_residual
 from tests.test_driver_mock import wait_until
 

@@ -9,7 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pimbs_calibration.recording import (
+from pimbs_recording.format import (
     META_KEY,
     RecordingError,
     RecordingWriter,

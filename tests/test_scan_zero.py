@@ -8,14 +8,14 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import load_robot
-from pimbs_calibration.recording import read_recording
 from pimbs_cli.main import main
 from pimbs_hw.mock import MockArm
 from pimbs_hw.scan import scan_bus
 from pimbs_hw.transport import open_transport
 from pimbs_hw.zeroing import CalibrationError, load
+from pimbs_recording.format import read_recording
 from tests.test_profiles import LAB_ROBOT, ODRIVE_ROBOT
 
 ROBOT = "two-link-4-muscle"

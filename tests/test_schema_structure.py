@@ -155,7 +155,7 @@ ACME = str(Path(__file__).resolve().parents[1] / "fixtures" / "foreign_arm"
 
 @pytest.mark.parametrize("robot", ["two-link-4-muscle", "left-arm-5dof", ACME])
 def test_geometric_prior_matches_the_arm_model(robot: str) -> None:
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
     from pimbs_learn.prior import GeometricPrior, prior_arrays
 
     arm = ArmModel.load(robot)
@@ -169,9 +169,9 @@ def test_geometric_prior_matches_the_arm_model(robot: str) -> None:
 
 
 def _recording(tmp_path, robot: str = "two-link-4-muscle", effects=()):
-    from pimbs_calibration.arm_model import ArmModel
-    from pimbs_calibration.recording import write_recording
-    from pimbs_calibration.simulate import simulate
+    from pimbs_arm.model import ArmModel
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
 
     path = tmp_path / "rec.parquet"
     write_recording(path, *simulate(ArmModel.load(robot), 40, "atl", seed=3,
@@ -182,8 +182,8 @@ def _recording(tmp_path, robot: str = "two-link-4-muscle", effects=()):
 def test_cli_default_uses_the_prior_and_reports_the_model_error(tmp_path) -> None:
     from click.testing import CliRunner
 
-    from pimbs_calibration.effects import parse_effect
     from pimbs_cli.train import command
+    from pimbs_sim.effects import parse_effect
 
     # the routing of the "real" arm is 3 mm off the description: the prior is close, not
     # exact, and the learned correction must improve on it

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import DescriptionError, load_robot
 from pimbs_calibration.xacro_check import live_xacro
 

@@ -10,11 +10,11 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.effects import EffectSpecError, parse_effect
-from pimbs_calibration.recording import read_recording
-from pimbs_calibration.simulate import simulate
+from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
+from pimbs_recording.format import read_recording
+from pimbs_sim.effects import EffectSpecError, parse_effect
+from pimbs_sim.simulate import simulate
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 
 
 def estimate_theta(model: ArmModel, length: np.ndarray, tension: np.ndarray,

@@ -11,7 +11,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from pimbs_calibration.approach import ApproachTracker
+from pimbs_recording.approach import ApproachTracker
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ class ApproachLink:
     """An ``ArmLink`` that follows every length it reads, to know each muscle's approach.
 
     The direction recorded with a sample is that of the last real motion into the pose
-    (see :mod:`pimbs_calibration.approach`), not the difference between two samples: the slack
+    (see :mod:`pimbs_recording.approach`), not the difference between two samples: the slack
     removal after a move often reverses a muscle, and friction follows the reversal.
     """
 

@@ -1,7 +1,7 @@
 """What to command for each sample: the seeded pose sequence and the tensions that hold it.
 
 Everything random is drawn up front from the seed, with the same streams as
-``pimbs_calibration.simulate`` (``pimbs_calibration.poses``: poses from ``[seed, 0]``, ATL
+``pimbs_sim.simulate`` (``pimbs_arm.poses``: poses from ``[seed, 0]``, ATL
 tension floors from ``[seed, 1]``, replacements of poses the muscles cannot hold within f_max
 from ``[seed, 3, i]``), so a collection and ``pimbs simulate`` of one seed command the same
 poses in the same order (their rows pair up by ``sample``), and ``--resume`` continues the
@@ -9,7 +9,7 @@ very same sequence, which holds no pose the model knows to be infeasible.
 
 Approach directions (stream ``[seed, 2]``): capstan friction makes a loadcell read more or
 less than the joint-side tension depending on the direction of the wire's last motion, and
-only a motion beyond the friction band (``pimbs_calibration.approach.BAND_M``) reverses it. The
+only a motion beyond the friction band (``pimbs_recording.approach.BAND_M``) reverses it. The
 slack take-up alone ends almost every muscle shortening, often by less than the band, which
 leaves friction ill-defined and unidentifiable. So each sample ends with a deliberate
 excursion: the slack take-up goes ``APPROACH_TRAVEL`` past the holding command and the final
@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_calibration.approach import BAND_M
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.poses import ATL_F_MIN, MAPS, hold_ceiling, plan_poses
+from pimbs_arm.model import ArmModel
+from pimbs_arm.poses import ATL_F_MIN, MAPS, hold_ceiling, plan_poses
+from pimbs_recording.approach import BAND_M
 
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
 OVERSHOOT_CEILING = 0.75  # no wire is overshot beyond this fraction of f_max

@@ -11,8 +11,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.recording import RecordingWriter, make_meta, read_recording
+from pimbs_arm.model import ArmModel
+from pimbs_recording.format import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
 RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map", "schema")

@@ -22,13 +22,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
-from pimbs_calibration.recording import RecordingWriter
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
+from pimbs_recording.format import RecordingWriter
 
 # m: how far short of the overshoot the final approach may start; its last motion is then still
 # APPROACH_TRAVEL - OVERSHOOT_TOL = 1.1 mm, beyond a full friction reversal (2 bands, 1 mm)

@@ -30,7 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.plan import (
     MAX_POSE_EXCURSION,
     OVERSHOOT_CEILING,

@@ -13,7 +13,6 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from pimbs_calibration.description import RobotDescription
-from pimbs_calibration.effects import parse_effect
 from pimbs_hw import open_arm
 from pimbs_hw.collection.link import DriverLink
 from pimbs_hw.collection.plan import CollectionPlan
@@ -30,6 +29,7 @@ from pimbs_hw.safety import (
     TensionLimit,
     WatchdogExpired,
 )
+from pimbs_sim.effects import parse_effect
 
 
 class ConnectError(HardwareError):

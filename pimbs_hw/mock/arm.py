@@ -86,7 +86,7 @@ class MockArm:
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
                  encoder_offset_m=None) -> None:
-        from pimbs_calibration.arm_model import ArmModel
+        from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
         self.robot = load_robot(robot) if isinstance(robot, str | Path) else robot

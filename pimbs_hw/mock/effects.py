@@ -1,7 +1,7 @@
 """The hook through which a concealed physics effect changes the simulated arm.
 
 The mock accepts any object (or a list of them) with some of these methods; a missing method
-means "no change". ``pimbs_calibration.effects.Effect`` provides all three, so
+means "no change". ``pimbs_sim.effects.Effect`` provides all three, so
 ``MockArm(..., effect=parse_effect("tendon_friction:0.2"))`` just works.
 
     physics(arm: ArmModel) -> ArmModel

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pimbs_calibration.approach import FrictionPlay
+from pimbs_recording.approach import FrictionPlay
 
 log = logging.getLogger(__name__)
 

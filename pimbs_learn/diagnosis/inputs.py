@@ -13,7 +13,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pimbs_calibration.recording import Recording
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 from pimbs_learn.diagnosis.fit import choose_degree, fit_effects
 from pimbs_learn.diagnosis.model import (
@@ -25,6 +24,7 @@ from pimbs_learn.diagnosis.model import (
     fit_schema,
     schema_jacobian,
 )
+from pimbs_recording.format import Recording
 
 DEFAULT_KAPPA = -1e-3  # start of the elasticity fit: K = 1000, physical sign
 MIN_SAMPLES = 30  # paired rows below which physics cannot be told from noise

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pimbs_calibration.recording import Recording, read_recording, write_recording
 from pimbs_learn.diagnosis.detect import detectable
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import (
@@ -22,6 +21,7 @@ from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
 from pimbs_learn.diagnosis.report import effect_entry
 from pimbs_learn.diagnosis.select import select_effects
+from pimbs_recording.format import Recording, read_recording, write_recording
 
 FIT_METRIC = ("mean squared held-out residual of lengths and torques, each channel "
               "divided by its noise level under the model without effects (5-fold CV)")
@@ -43,7 +43,7 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
                                   "--robot NAME|PATH (the robot description)")
     arm, kappa = None, None
     if robot is not None:
-        from pimbs_calibration.arm_model import ArmModel
+        from pimbs_arm.model import ArmModel
 
         arm = ArmModel.load(robot)
         if list(arm.joints) != real_rec.joints or list(arm.muscles) != real_rec.muscles:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 from pimbs_calibration.urdf_model import link_centres, parse_joints
 
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from pimbs_calibration.arm_model import ArmModel
+from pimbs_arm.model import ArmModel
 
 # Vocabulary shared with the diagnosis report; aliases accepted on the command line.
 EFFECT_NAMES = ("tendon_friction", "link_mass", "tension_offset", "tension_gain",

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel
-from pimbs_calibration.routing import MIN_MOMENT_ARM, RoutingReport
+from pimbs_arm.model import ArmModel
+from pimbs_arm.routing import MIN_MOMENT_ARM, RoutingReport
 from pimbs_calibration.urdf_model import UNLIMITED, link_masses, parse_joints
 
 

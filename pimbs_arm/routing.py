@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from pimbs_calibration.arm_model import ArmModel
+    from pimbs_arm.model import ArmModel
 
 MIN_MOMENT_ARM = 1e-3  # m: a muscle with less does not usefully pull a joint
 

@@ -24,7 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pimbs_calibration.atomic import AtomicWriteError, atomic_file
+from pimbs_recording.atomic import AtomicWriteError, atomic_file
 
 FORMAT_VERSION = 1
 META_KEY = b"pimbs"

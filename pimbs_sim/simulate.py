@@ -1,7 +1,7 @@
 """The paper's simulated body-schema data set, and "real" data with a concealed effect.
 
 Per sample (Sec. III-A of the paper): θ uniform in the joint range (the seeded sequence of
-:mod:`pimbs_calibration.poses`, shared with ``collect``: a pose the muscles cannot hold within
+:mod:`pimbs_arm.poses`, shared with ``collect``: a pose the muscles cannot hold within
 f_max is replaced by a feasible draw); gravity torque and
 geometric lengths from the model; tensions from the QP ``min fᵀf s.t. −Gᵀf = τ, f ≥ f_min``
 with ``f_min = 0`` (AL-Map) or uniform in [10, 300] N per muscle (ATL-Map); lengths with the
@@ -10,7 +10,7 @@ elastic stretch ``f = exp(KΔn) − 1``.
 Like a real collection, the recording also carries times, approach directions (the sign
 of each muscle's length change on the way from the previous pose), motor temperatures that
 rise with load (first-order thermal model) and sensor noise. With effects from
-:mod:`pimbs_calibration.effects` the data obey the *true* arm while ``tau_gravity`` is still
+:mod:`pimbs_sim.effects` the data obey the *true* arm while ``tau_gravity`` is still
 computed from the model, exactly as on hardware. Poses, f_min draws and noise come from
 separate seeded streams, so a concealed and a clean recording of one seed pair by
 ``sample``.
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError
-from pimbs_calibration.effects import T_REF, Effect, World
-from pimbs_calibration.poses import ATL_F_MIN, hold_ceiling, plan_poses
-from pimbs_calibration.recording import make_meta
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
+from pimbs_arm.poses import ATL_F_MIN, hold_ceiling, plan_poses
+from pimbs_recording.format import make_meta
+from pimbs_sim.effects import T_REF, Effect, World
 
 __all__ = ["ATL_F_MIN", "simulate", "SensorNoise", "ThermalModel", "approach_direction"]
 START = np.datetime64("2026-01-01T09:00:00", "us")  # fixed, so files of one seed are equal

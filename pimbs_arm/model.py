@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import quadprog
 
-from pimbs_calibration.arm_backend import ArmBackend
+from pimbs_arm.backend import ArmBackend
+from pimbs_arm.backends.viapoints import ViaPointBackend
 from pimbs_calibration.description import RobotDescription, load_robot
-from pimbs_calibration.viapoint_backend import ViaPointBackend
 
 
 class InfeasiblePoseError(RuntimeError):
@@ -64,7 +64,7 @@ def make_backend(robot: RobotDescription) -> ArmBackend:
     """The geometry/gravity backend a description asks for: MuJoCo for an MJCF, else
     pinocchio + via points."""
     if robot.mjcf_path is not None:
-        from pimbs_calibration.mujoco_backend import MujocoBackend
+        from pimbs_arm.backends.mujoco_tendons import MujocoBackend
 
         return MujocoBackend(robot)
     return ViaPointBackend(robot)
@@ -89,7 +89,7 @@ class ArmModel:
         self.backend = make_backend(robot) if backend is None else backend
         self.joint_limits = self.backend.joint_limits
         self._h0 = self.backend.kinematics(np.zeros(self.n_joints), jacobian=False).length
-        from pimbs_calibration.routing import check_both_ways  # needs a built model
+        from pimbs_arm.routing import check_both_ways  # needs a built model
 
         check_both_ways(self)
 
@@ -240,6 +240,6 @@ class ArmModel:
         Returns:
             Equilibrium minimising gravity + elastic potential within the URDF limits.
         """
-        from pimbs_calibration.statics import solve_equilibrium  # solver lives in its own module
+        from pimbs_arm.equilibrium import solve_equilibrium  # solver lives in its own module
 
         return solve_equilibrium(self, mode, command, theta0)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_calibration.arm_model import ArmModel, InfeasiblePoseError, sample_poses
+from pimbs_arm.model import ArmModel, InfeasiblePoseError, sample_poses
 
 ATL_F_MIN = (10.0, 300.0)  # N, the paper's range of the ATL-Map tension floors
 MAPS = ("al", "atl")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from pimbs_calibration.arm_backend import Kinematics
+from pimbs_arm.backend import Kinematics
 from pimbs_calibration.description import RobotDescription, reduced_model
 
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from pimbs_calibration.arm_model import ArmModel, Equilibrium
+    from pimbs_arm.model import ArmModel, Equilibrium
 
 _EXP_CAP = 60.0  # cap K*dn so far-off trial points give a huge but finite energy
 
@@ -103,7 +103,7 @@ def _geometric_start(problem: _Problem, theta: np.ndarray, lo, hi) -> np.ndarray
 def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: int = 100,
                       atol: float = 1e-9) -> Equilibrium:
     """Projected-Newton minimisation of the static energy; see ``ArmModel.equilibrium``."""
-    from pimbs_calibration.arm_model import Equilibrium
+    from pimbs_arm.model import Equilibrium
 
     is_length = _mode_mask(mode, arm.n_muscles)
     command = np.asarray(command, dtype=np.float64)
