@@ -17,7 +17,24 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from pimbs_arm.model import ArmModel, Equilibrium
+    from pimbs_arm.model import ArmModel
+
+@dataclass
+class Equilibrium:
+    """Result of ``ArmModel.equilibrium``.
+
+    ``length`` is what each motor encoder reads: the commanded length for length-mode muscles
+    (also when slack, where it exceeds the geometric length), ``h_geom - dn(f_cmd)`` for
+    tension-mode muscles. ``residual`` is ``||g(theta) + G^T f||``; it is non-zero only where a
+    joint rests on its URDF limit.
+    """
+
+    theta: np.ndarray  # (N,)
+    tension: np.ndarray  # (M,)
+    length: np.ndarray  # (M,)
+    converged: bool
+    residual: float
+
 
 _EXP_CAP = 60.0  # cap K*dn so far-off trial points give a huge but finite energy
 
@@ -103,8 +120,6 @@ def _geometric_start(problem: _Problem, theta: np.ndarray, lo, hi) -> np.ndarray
 def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: int = 100,
                       atol: float = 1e-9) -> Equilibrium:
     """Projected-Newton minimisation of the static energy; see ``ArmModel.equilibrium``."""
-    from pimbs_arm.model import Equilibrium
-
     is_length = _mode_mask(mode, arm.n_muscles)
     command = np.asarray(command, dtype=np.float64)
     if command.shape != (arm.n_muscles,) or not np.all(np.isfinite(command)):

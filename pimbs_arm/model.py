@@ -9,7 +9,6 @@ the muscles must supply, and the motor length is ``l = h_geom(theta) - dn(f)``.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,28 +16,12 @@ import quadprog
 
 from pimbs_arm.backend import ArmBackend
 from pimbs_arm.backends.viapoints import ViaPointBackend
+from pimbs_arm.equilibrium import Equilibrium, solve_equilibrium
 from pimbs_calibration.description import RobotDescription, load_robot
 
 
 class InfeasiblePoseError(RuntimeError):
     """No non-negative tensions above the floor can hold the arm in the requested pose."""
-
-
-@dataclass
-class Equilibrium:
-    """Result of ``ArmModel.equilibrium``.
-
-    ``length`` is what each motor encoder reads: the commanded length for length-mode muscles
-    (also when slack, where it exceeds the geometric length), ``h_geom - dn(f_cmd)`` for
-    tension-mode muscles. ``residual`` is ``||g(theta) + G^T f||``; it is non-zero only where a
-    joint rests on its URDF limit.
-    """
-
-    theta: np.ndarray  # (N,)
-    tension: np.ndarray  # (M,)
-    length: np.ndarray  # (M,)
-    converged: bool
-    residual: float
 
 
 def sample_poses(joint_range: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -240,6 +223,4 @@ class ArmModel:
         Returns:
             Equilibrium minimising gravity + elastic potential within the URDF limits.
         """
-        from pimbs_arm.equilibrium import solve_equilibrium  # solver lives in its own module
-
         return solve_equilibrium(self, mode, command, theta0)

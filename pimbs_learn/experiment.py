@@ -17,68 +17,27 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from pimbs_learn.data import Samples, load_samples, split
-from pimbs_learn.graph import MLP, SERIES_ELASTIC
-from pimbs_learn.losses import REPORT_SCALE, LossConfig
+from pimbs_learn.losses import REPORT_SCALE
 from pimbs_learn.paired import paired_change
 from pimbs_learn.run import Run, TrainOptions, TrainResult
+from pimbs_learn.tables import (
+    BASIC_EXP,
+    DEFAULT,
+    DEFAULT_PRIOR,
+    FIVE_DOF,
+    PAPER_LOSSES,
+    TWO_LINK,
+    Method,
+    TableResult,
+    TableSpec,
+)
 from pimbs_learn.train import train_runs
-
-TWO_LINK, FIVE_DOF = "two-link-4-muscle", "left-arm-5dof"
-PAPER_LOSSES = ("basic", "basic+const", "basic+pinn", "basic+const+pinn")
-
-
-@dataclass(frozen=True)
-class Method:
-    """One row of a table: a loss, its α (or automatic weighting), structure and prior."""
-
-    loss: str
-    alpha: float = 1e-5
-    structure: str = MLP
-    weighting: str = "fixed"
-    prior: bool = False
-    schedule: str = "constant"  # learning-rate schedule (TrainOptions.schedule)
-
-    @property
-    def label(self) -> str:
-        name = "+".join(t.capitalize() if t != "pinn" else "PINN" for t in self.loss.split("+"))
-        if self.structure == SERIES_ELASTIC:
-            name = "SE " + name
-        if "pinn" in self.loss:
-            name += " (auto α)" if self.weighting == "auto" else f" (α={self.alpha:g})"
-        if self.schedule != "constant":
-            name += f", lr {self.schedule}"
-        return name + (" + prior" if self.prior else "")
-
-    def config(self) -> LossConfig:
-        return LossConfig.parse(self.loss, self.alpha if self.weighting == "fixed" else 1.0,
-                                self.weighting)
-
-
-# The new default of `pimbs train` (without and with the robot description as prior).
-DEFAULT = Method("basic+const+pinn", structure=SERIES_ELASTIC, weighting="auto",
-                 schedule="exp")
-DEFAULT_PRIOR = replace(DEFAULT, prior=True)
-# the paper's Basic with the default's learning-rate schedule: what the schedule alone does
-BASIC_EXP = Method("basic", schedule="exp")
-
-
-@dataclass(frozen=True)
-class TableSpec:
-    key: str
-    title: str
-    robot: str
-    atl: bool
-    n_train: tuple[int, ...]
-    methods: tuple[Method, ...]
-    pool: int  # rows of the training recording (Tables I/II) or of the whole recording (III)
-    eval_samples: int | None  # separate D_eval size, or None: the rest of the recording
-    noise: float
 
 
 def paper_tables(quick: bool = False) -> list[TableSpec]:
@@ -113,16 +72,6 @@ def simulate_recording(path: Path, robot: str, samples: int, atl: bool, seed: in
         data, meta = simulate(ArmModel.load(robot), samples, map_kind, seed=seed, noise=noise)
         write_recording(path, data, meta)
     return cmd
-
-
-@dataclass
-class TableResult:
-    spec: TableSpec
-    results: dict[tuple[str, int], list[TrainResult]]  # (method label, N) -> one per seed
-
-    def cell(self, label: str, n: int) -> tuple[float, float]:
-        v = np.array([r.eval_loss for r in self.results[(label, n)]]) * REPORT_SCALE
-        return float(v.mean()), float(v.std())
 
 
 def table_runs(spec: TableSpec, data_dir: Path, seeds: int,

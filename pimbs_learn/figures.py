@@ -11,7 +11,7 @@ import numpy as np
 from pimbs_learn.losses import REPORT_SCALE
 
 if TYPE_CHECKING:
-    from pimbs_learn.experiment import TableResult
+    from pimbs_learn.tables import TableResult
 
 
 def pyplot():
