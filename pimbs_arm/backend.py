@@ -2,9 +2,9 @@
 
 ``ArmModel`` owns what is the same for every arm (elasticity, the tension QP, static
 equilibrium); a backend owns what depends on how the arm is described: muscle path lengths
-and their Jacobians, gravity. Two backends exist: ``viapoint_backend`` (a URDF through
-pinocchio plus straight wire segments between via points) and ``mujoco_backend`` (an MJCF
-whose spatial tendons MuJoCo itself measures, wrapping included).
+and their Jacobians, gravity. Backends live in ``pimbs_arm/backends/``: ``viapoints`` (a
+URDF through pinocchio plus straight wire segments between via points) and, for an MJCF,
+``mujoco_tendons`` (spatial tendons measured by MuJoCo itself, wrapping included).
 
 Shapes (N driven joints, M muscles), SI units, numpy float64:
     theta (N,) rad; lengths (M,) m ABSOLUTE (``ArmModel`` subtracts the length at theta = 0);

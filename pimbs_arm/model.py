@@ -56,7 +56,7 @@ def make_backend(robot: RobotDescription) -> ArmBackend:
 class ArmModel:
     """Muscle + rigid-body model of one robot description (numpy float64 throughout).
 
-    Geometry and gravity come from a backend (``arm_backend``); elasticity, the tension QP
+    Geometry and gravity come from a backend (``pimbs_arm.backend``); elasticity, the tension QP
     and the equilibrium are computed here, the same for every backend.
     """
 

@@ -54,6 +54,19 @@ class GeometricSchema:
         return self.arm.muscle_jacobian(theta)
 
 
+def batched_geometric(arm: Any) -> Any:
+    """The description's model evaluated for many poses at once (``PriorSchema``, torch), or
+    the per-pose :class:`GeometricSchema` where the tensor model does not cover the
+    description (non-revolute joints)."""
+    from pimbs_learn.prior import PriorUnavailable
+    from pimbs_learn.prior_schema import PriorSchema
+
+    try:
+        return PriorSchema(arm)
+    except PriorUnavailable:
+        return GeometricSchema(arm)
+
+
 @dataclass(frozen=True)
 class Estimate:
     """theta (B, N) rad; residual (B,) m: rms over muscles of h(θ̂, f) − l."""
@@ -198,8 +211,6 @@ def joint_angle_report(schema: Any, theta: np.ndarray, tension: np.ndarray,
     ``max_rows`` at most that many samples (a seeded draw, in their order) are estimated:
     a summary after training must not cost more than the training as the data set grows.
     """
-    from pimbs_learn.prior_schema import batched_geometric
-
     rows = None
     if max_rows is not None and len(theta) > max_rows:
         rows = np.sort(np.random.default_rng(seed).permutation(len(theta))[:max_rows])

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pimbs_learn.prior import GeometricPrior, PriorUnavailable, prior_arrays
+from pimbs_learn.prior import GeometricPrior, prior_arrays
 
 
 class PriorSchema:
@@ -39,13 +39,3 @@ class PriorSchema:
     def jacobian(self, theta: Any, f: Any = None) -> np.ndarray:
         return self.length_and_jacobian(theta, f)[1]
 
-
-def batched_geometric(arm: Any) -> Any:
-    """A :class:`PriorSchema` of ``arm``, or its per-pose ``GeometricSchema`` where the tensor
-    model does not cover the description (non-revolute joints)."""
-    from pimbs_learn.estimate import GeometricSchema
-
-    try:
-        return PriorSchema(arm)
-    except PriorUnavailable:
-        return GeometricSchema(arm)

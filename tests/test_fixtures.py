@@ -7,12 +7,18 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
+from pimbs_arm.model import ArmModel
 from pimbs_learn.diagnosis.run import diagnose
-from pimbs_recording.format import RecordingError, read_recording
+from pimbs_recording.format import RecordingError, read_recording, write_recording
+from pimbs_sim.simulate import simulate
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -68,3 +74,25 @@ def test_install_adds_no_generic_top_level_packages(tmp_path):
     r = subprocess.run([sys.executable, "-c", "import pimbs_cli, pimbs_calibration"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
+
+
+def test_todays_code_writes_the_committed_recording():
+    """The recording format is a contract: ``fixtures/two_link_sim.parquet`` was written by
+    ``fixtures/make_fixtures.py``; the same call today writes the same columns, values and
+    metadata (moving code between packages must not change a byte of what is recorded)."""
+    data, meta = simulate(ArmModel.load("two-link-4-muscle"), 60, "atl", seed=5)
+    meta["created"] = "2026-11-21T00:00:00Z"
+    out = FIXTURES / "two_link_sim.parquet"
+    with tempfile.TemporaryDirectory() as tmp:
+        write_recording(Path(tmp) / "now.parquet", data, meta)
+        now = pq.read_table(Path(tmp) / "now.parquet")
+    before = pq.read_table(out)
+    assert now.schema.equals(before.schema, check_metadata=True)
+    for name in before.column_names:
+        a, b = now[name].to_pylist(), before[name].to_pylist()
+        kind = before.schema.field(name).type
+        if not (pa.types.is_floating(kind) or pa.types.is_list(kind)):
+            assert a == b, name
+        else:
+            np.testing.assert_allclose(np.array(a, float), np.array(b, float), rtol=0,
+                                       atol=1e-12, err_msg=name)

@@ -1,6 +1,6 @@
 """URDF + via points: muscle geometry by pinocchio kinematics and straight wire segments.
 
-The arm backend (see ``arm_backend``) of a robot described by a URDF and a ``.muscles.yaml``:
+The arm backend (see ``pimbs_arm.backend``) of a robot described by a URDF and a ``.muscles.yaml``:
 each muscle is a chain of straight segments between via points fixed on links; lengths,
 Jacobians and the Hessian are analytic, gravity is pinocchio's.
 """
