@@ -154,6 +154,7 @@ class MockArm:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        self._drain()
         self.plant.close()
         self.transport.close()
 
@@ -206,6 +207,22 @@ class MockArm:
             if now >= next_tick:
                 self._tick(now)
                 next_tick = max(next_tick + self.tick_s, now)
+
+    def _drain(self, timeout_s: float = 0.2) -> None:
+        """Act on the frames the host sent before it closed the link (its last relax among
+        them): real boards process what reached them, however busy this machine was."""
+        deadline = time.monotonic() + timeout_s
+        try:
+            frame = self.transport.recv(0.02)
+            while frame is not None and time.monotonic() < deadline:
+                self._on_frame(frame)
+                frame = self.transport.recv(0.02)
+        except HardwareError:  # the host's end is gone and nothing is left to read
+            pass
+        if self._commanded:
+            self._commanded = False
+            with self._lock:
+                self._actuate()
 
     def _on_frame(self, frame) -> None:
         if self._bus_off:
