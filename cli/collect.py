@@ -161,7 +161,7 @@ def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None
 def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, str | None]:
     """Encoder zeros to apply (the named file, else the robot's default one if present),
     and the line to show once the arm is connected."""
-    from pimbs_hw.zeroing import default_path, load
+    from pimbs_calibration.zeroing import default_path, load
 
     path = calibration or default_path(robot)
     if calibration is None and (simulated or not path.exists()):

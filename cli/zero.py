@@ -31,8 +31,9 @@ def command(port: str, robot: str, calibration: Path | None, yes: bool, force: b
     """Zero every motor encoder at the home pose (all joints 0 rad, wires on their pulleys)."""
 
     from pimbs_arm.model import ArmModel
+    from pimbs_calibration.zeroing import default_path, save
     from pimbs_hw import is_simulated, open_arm
-    from pimbs_hw.zeroing import default_path, measure_zero, save
+    from pimbs_hw.zeroing import measure_zero
 
     model = ArmModel.load(robot)
     path = check_output(calibration or default_path(model.robot), force=force,

@@ -10,11 +10,11 @@ from click.testing import CliRunner
 
 from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import load_robot
+from pimbs_calibration.zeroing import CalibrationError, load
 from pimbs_cli.main import main
 from pimbs_hw.mock import MockArm
 from pimbs_hw.scan import scan_bus
 from pimbs_hw.transport import open_transport
-from pimbs_hw.zeroing import CalibrationError, load
 from pimbs_recording.format import read_recording
 from tests.test_profiles import LAB_ROBOT, ODRIVE_ROBOT
 
