@@ -77,7 +77,3 @@ def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) ->
             lines.append(f"    theta=[{pose}]: nothing turns it towards "
                          f"{report.missing_side(p, j)} angles")
     return lines
-
-
-def routing_ok(report: RoutingReport) -> bool:
-    return not report.one_sided().any()
