@@ -64,8 +64,9 @@ def pose_accuracy(rec) -> list[str]:
     measured pose itself, and an accuracy of 0° would be a claim nobody measured.
     """
     if rec.source == "import" or "theta_command" in rec.meta:
-        holds = rec.meta.get("theta_command") or "no commands"
-        return [f"  pose accuracy  none: no commanded poses (theta_command holds {holds})"]
+        note = rec.meta.get("theta_command")
+        why = f"theta_command holds {note}" if note else "an imported log records no commands"
+        return [f"  pose accuracy  none: no commanded poses ({why})"]
     err = rec.theta - rec.theta_command
     ok = np.isfinite(err).all(axis=1)
     if not ok.any():
