@@ -51,9 +51,10 @@ def writer_lock(path: Path) -> Iterator[Path]:
     lock = lock_path(Path(path))
     fd = _acquire(Path(path), lock)
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, (f"pid {os.getpid()} on {socket.gethostname()}, since "
-                      f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M:%S} UTC\n").encode())
+        with contextlib.suppress(OSError):  # who holds it is a courtesy; a full disk must
+            os.ftruncate(fd, 0)              # not stop the run, the lock itself is held
+            os.write(fd, (f"pid {os.getpid()} on {socket.gethostname()}, since "
+                          f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M:%S} UTC\n").encode())
         yield lock
     finally:
         with contextlib.suppress(FileNotFoundError):
