@@ -30,8 +30,10 @@ def data(tmp_path, monkeypatch) -> Path:
 def test_train_data_alpha_as_the_design_writes_it(data) -> None:
     """`pimbs train data.parquet --alpha 1e-7`: a seeded 80/20 split, its rows named."""
     runner = CliRunner()
+    before = _files(data.parent)
     runs = [runner.invoke(main, ["train", "data.parquet", "--alpha", "1e-7", "--epochs", "2"])
             for _ in range(2)]
+    assert _files(data.parent) == before  # no --out: the recording untouched, nothing saved
     for res in runs:
         assert res.exit_code == 0, res.output
     line = [x for x in runs[0].output.splitlines() if x.startswith("note: no --n-train")]
