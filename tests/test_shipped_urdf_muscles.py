@@ -12,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from pimbs_arm.model import ArmModel
 from pimbs_calibration.description import load_robot, reduced_model
+from pimbs_cli.main import main
 from tests.generated_muscles import MOMENT_ARM, usable_joints, write_muscle_file
 from tests.test_shipped_urdf import ROBOTS, URDFS
 
@@ -79,5 +81,9 @@ def test_a_mimic_of_no_joint_is_locked_not_fatal(tmp_path: Path) -> None:
     fingers are not driven, so they are locked and the arm loads."""
     urdf = ROBOTS / "alex_description/urdf/alex_psyonic_hands.urdf"
     assert "Left_index_q2" in urdf.read_text()
-    robot = load_robot(write_muscle_file(urdf, tmp_path))
+    muscles = write_muscle_file(urdf, tmp_path)
+    robot = load_robot(muscles)
     assert "Left_index_q2" in dict(robot.locked)
+    res = CliRunner().invoke(main, ["robot", str(muscles), "--poses", "5"])
+    assert res.exit_code == 0, res.output
+    assert "(mimic of index_q1, which is not a joint of the URDF)" in res.output  # said
