@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pimbs_calibration.file_kind import model_file_kind, not_a_muscle_file
 from pimbs_calibration.urdf_model import (
     ReducedModel,
     UrdfError,
@@ -67,6 +68,14 @@ class DescriptionError(ValueError):
         self.path = Path(path)
         self.field = field
         super().__init__(f"{self.path}: field '{field}': {problem}. {fix}")
+
+
+class NotAMuscleFileError(DescriptionError):
+    """A URDF, MJCF or other model file given where the muscle file belongs."""
+
+    def __init__(self, path: Path | str, kind: str) -> None:
+        self.path, self.field, self.kind = Path(path), "<file>", kind
+        ValueError.__init__(self, not_a_muscle_file(self.path, kind))
 
 
 class _ArrayFieldsEq:
@@ -163,6 +172,9 @@ def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
 
 
 def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescription:
+    kind = model_file_kind(path)
+    if kind is not None:
+        raise NotAMuscleFileError(path, kind)
     try:
         raw = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:

@@ -17,6 +17,7 @@ driven joints, so the URDF is read as it is and
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import xml.etree.ElementTree as ET
@@ -131,10 +132,13 @@ def link_centres(text: str) -> dict[str, np.ndarray]:
     return centres
 
 
-def prepared_xml(text: str) -> str:
+def prepared_xml(text: str, rename: Mapping[str, str] | None = None) -> str:
     """The URDF pinocchio reads: no geometry, continuous joints as unlimited revolute ones,
-    mimic tags removed (``reduce`` resolves them)."""
+    mimic tags removed (``reduce`` resolves them), joints named in ``rename`` renamed."""
     root = ET.fromstring(text)
+    for joint in root.findall("joint"):
+        if rename and joint.get("name") in rename:
+            joint.set("name", rename[joint.get("name", "")])
     for link in root.findall("link"):
         for tag in ("visual", "collision"):
             for el in link.findall(tag):
@@ -173,10 +177,10 @@ def reduce(text: str, driven: Sequence[str], lock: Mapping[str, float]) -> Reduc
     import pinocchio as pin  # lazy: heavy import
 
     joints = parse_joints(Path("<urdf>"), text)
-    full = pin.buildModelFromXML(prepared_xml(text))
+    rename = _lock_names(text, joints)
+    full = pin.buildModelFromXML(prepared_xml(text, rename))
     q_ref = pin.neutral(full)
-    leaders = {j.name: resolve_mimic(joints, j.name) for j in joints.values()
-               if j.movable and j.mimic is not None}
+    leaders = _leaders(joints)
     locked: dict[str, float] = {}
     followers: dict[str, tuple[str, float, float]] = {}
     for j in joints.values():
@@ -191,18 +195,66 @@ def reduce(text: str, driven: Sequence[str], lock: Mapping[str, float]) -> Reduc
         else:
             value = _lock_value(j, lock)
         locked[j.name] = value
-        q_ref[full.joints[full.getJointId(j.name)].idx_q] = value
-    lock_ids = [full.getJointId(name) for name in locked]
+        q_ref[full.joints[full.getJointId(rename.get(j.name, j.name))].idx_q] = value
+    lock_ids = [full.getJointId(rename.get(name, name)) for name in locked]
     model = pin.buildReducedModel(full, lock_ids, q_ref) if lock_ids else full
+    _restore_names(model, rename)
     S = np.zeros((model.nq, len(driven)))
     offset = np.zeros(model.nq)
     for k, name in enumerate(driven):
-        S[model.joints[model.getJointId(name)].idx_q, k] = 1.0
+        S[model.joints[model.getJointId(name)].idx_q, k] = 1.0  # names restored above
     for name, (leader, m, c) in followers.items():
         iq = model.joints[model.getJointId(name)].idx_q
         S[iq, list(driven).index(leader)] = m
         offset[iq] = c
     return ReducedModel(model=model, S=S, offset=offset, locked=locked, followers=followers)
+
+
+def _leaders(joints: Mapping[str, UrdfJoint]) -> dict[str, tuple[str, float, float]]:
+    """(leader, multiplier, offset) of every movable mimic joint whose chain resolves.
+
+    A chain that names no joint or loops (a shipped hand URDF's mimic names a joint of
+    another prefix) cannot follow anything: such a joint is locked like any joint the
+    muscles do not drive. A driven joint is never a mimic (the description refuses that).
+    """
+    leaders = {}
+    for j in joints.values():
+        if j.movable and j.mimic is not None:
+            with contextlib.suppress(UrdfError):
+                leaders[j.name] = resolve_mimic(joints, j.name)
+    return leaders
+
+
+def _lock_names(text: str, joints: Mapping[str, UrdfJoint]) -> dict[str, str]:
+    """Stand-in names for the movable joints that share their name with a link.
+
+    Pinocchio's ``buildReducedModel`` looks joint frames up by name alone and stops at
+    "Several frames match the filter" when a link has the same name (ANYmal C and SO-100
+    ship such URDFs). The joints are renamed for pinocchio; ``_restore_names`` gives the
+    driven ones their own names back once the model is reduced.
+    """
+    links = {el.get("name", "") for el in ET.fromstring(text).findall("link")}
+    taken = links | set(joints)
+    rename = {}
+    for name, joint in joints.items():
+        if joint.movable and name in links:
+            new = f"{name}__locked"
+            while new in taken:
+                new += "_"
+            rename[name] = new
+            taken.add(new)
+    return rename
+
+
+def _restore_names(model, rename: Mapping[str, str]) -> None:
+    """The URDF's names for the joints (and joint frames) ``_lock_names`` renamed."""
+    back = {new: old for old, new in rename.items()}
+    for jid, name in enumerate(model.names):
+        if name in back:
+            model.names[jid] = back[name]
+    for frame in model.frames:
+        if frame.name in back:
+            frame.name = back[frame.name]
 
 
 def _lock_value(joint: UrdfJoint, lock: Mapping[str, float]) -> float:

@@ -107,6 +107,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     from pimbs_hw.collection.resume import collection_meta, open_recording
     from pimbs_hw.collection.settle import SettleConfig
     from pimbs_hw.mock.faults import parse_faults
+    from pimbs_recording.writer_lock import writer_lock
 
     simulated = is_simulated(port)
     if (faults or conceal) and not simulated:
@@ -132,13 +133,16 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     zero_m, note = _zeros(model.robot, calibration, simulated)
-    writer, start = open_recording(out, meta, resume)
-    if start >= samples:
-        click.echo(f"{out} already holds all {samples} samples; nothing to do")
-        return
-    with _stop_on_signals():
-        _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed, zero_m,
-             note)
+    # one writer per recording for the whole run: a second collect (or --resume) on the same
+    # file is refused before it reads or writes anything, instead of dropping samples
+    with writer_lock(out):
+        writer, start = open_recording(out, meta, resume)
+        if start >= samples:
+            click.echo(f"{out} already holds all {samples} samples; nothing to do")
+            return
+        with _stop_on_signals():
+            _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
+                 zero_m, note)
 
 
 def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):

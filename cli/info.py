@@ -60,8 +60,13 @@ def pose_accuracy(rec) -> list[str]:
     """rms of θ − θ_command per joint in degrees: how well the commands reach their poses.
 
     Only meaningful where θ is measured (joint encoders); otherwise θ is itself a model
-    estimate, which the line says.
+    estimate, which the line says. A log has no commands: its ``theta_command`` is the
+    measured pose itself, and an accuracy of 0° would be a claim nobody measured.
     """
+    if rec.source == "import" or "theta_command" in rec.meta:
+        note = rec.meta.get("theta_command")
+        why = f"theta_command holds {note}" if note else "an imported log records no commands"
+        return [f"  pose accuracy  none: no commanded poses ({why})"]
     err = rec.theta - rec.theta_command
     ok = np.isfinite(err).all(axis=1)
     if not ok.any():

@@ -57,9 +57,9 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
     turned both ways at every checked pose (exit status 1 where it cannot)."""
     import numpy as np
 
-    from pimbs_arm.explain import describe, routing_ok
+    from pimbs_arm.explain import describe
     from pimbs_arm.model import ArmModel
-    from pimbs_arm.routing import check_poses, routing_report
+    from pimbs_arm.routing import BOTH_WAYS_FIX, both_ways_problem, check_poses, routing_report
     from pimbs_calibration.description import load_robot
 
     if plot is not None:
@@ -76,8 +76,8 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
         panels = [("home pose", home)] + ([] if other is None else [("given pose", other)])
         plot_routing(arm, plot, panels)
         click.echo(f"\nwrote {plot}")
-    if not routing_ok(report):
+    problem = both_ways_problem(arm, report)
+    if problem:
         raise click.ClickException(
             f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways at the "
-            "poses listed above; route a muscle on the missing side or narrow that joint's "
-            "range")
+            f"poses listed above ({problem}); {BOTH_WAYS_FIX}")

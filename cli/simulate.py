@@ -38,6 +38,7 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
 
     check_output(out, force=force, what="recording")
     arm = ArmModel.load(robot)
+    _refuse_one_sided(arm, robot)
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
     with progress("simulate", samples, "samples") as update:
         data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects,
@@ -52,3 +53,16 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")
+
+
+def _refuse_one_sided(arm, robot: str) -> None:
+    """Refuse, as `pimbs robot` does, an arm whose muscles cannot turn a joint both ways
+    somewhere in its range: its recording would hold poses no real arm of that routing
+    can be held in against gravity, with nothing in the file to say so."""
+    from pimbs_arm.routing import BOTH_WAYS_FIX, both_ways_problem, check_poses, routing_report
+
+    problem = both_ways_problem(arm, routing_report(arm, check_poses(arm)))
+    if problem:
+        raise click.ClickException(
+            f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways "
+            f"({problem}), as `pimbs robot {robot}` shows with the poses; {BOTH_WAYS_FIX}")

@@ -36,7 +36,9 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[s
     if locked or followers:
         lines += ["", f"locked joints ({len(locked)}; not driven by muscles, held rigid):"]
         for name, value in locked.items():
-            how = f" (mimic of {urdf[name].mimic[0]})" if urdf[name].mimic else ""
+            leader = urdf[name].mimic[0] if urdf[name].mimic else None
+            how = ("" if leader is None else f" (mimic of {leader})" if leader in urdf
+                   else f" (mimic of {leader}, which is not a joint of the URDF)")
             lines.append(f"  {name:<22} {urdf[name].type:<10} at {value:.4g}{how}")
         for name, (leader, m, c) in followers.items():
             lines.append(f"  {name:<22} follows driven {leader}: q = {m:g}*{leader} + {c:g}")
@@ -77,7 +79,3 @@ def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) ->
             lines.append(f"    theta=[{pose}]: nothing turns it towards "
                          f"{report.missing_side(p, j)} angles")
     return lines
-
-
-def routing_ok(report: RoutingReport) -> bool:
-    return not report.one_sided().any()

@@ -82,3 +82,24 @@ def check_both_ways(arm: ArmModel) -> None:
             "Route a muscle across it on the other side (via points on both links, offset "
             "from the joint axis), or lock the joint by removing it from 'joints'; "
             "`pimbs robot` shows the moment arms")
+
+
+def both_ways_problem(arm: ArmModel, report: RoutingReport) -> str | None:
+    """Which driven joints the routing cannot turn which way, at how many of the checked
+    poses, in one phrase (None when every joint turns both ways everywhere).
+
+    `pimbs robot` and `pimbs simulate` refuse a routing with the same words, so a user meets
+    one diagnosis whichever command they ran first.
+    """
+    bad = report.one_sided()
+    parts = []
+    for j in np.flatnonzero(bad.any(axis=0)):
+        where = np.flatnonzero(bad[:, j])
+        sides = sorted({report.missing_side(p, j) for p in where})
+        parts.append(f"{arm.joints[j]} not towards {' or '.join(sides)} angles at "
+                     f"{len(where)} of {len(report.poses)} checked poses")
+    return "; ".join(parts) or None
+
+
+#: what to do about a joint that cannot be turned both ways
+BOTH_WAYS_FIX = "route a muscle on the missing side or narrow that joint's range"

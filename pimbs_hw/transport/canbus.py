@@ -91,8 +91,13 @@ def _open_hint(port: str, kwargs: dict[str, Any], said: str, hint: str = _HINT) 
     if kwargs.get("interface") == "socketcan":
         ch = kwargs.get("channel", port)
         named = "" if ch == port else f" (port {port!r})"
-        text = (f"no CAN interface {ch!r}{named} ({said}): is the adapter plugged in and "
-                f"`sudo ip link set {ch} up type can bitrate 1000000` done? {hint}")
+        # errno 97: the kernel has no SocketCAN at all (a container, WSL), so `ip link`
+        # alone cannot help; an SLCAN adapter works anywhere as a serial device
+        kernel = (" (this kernel has no SocketCAN: `sudo modprobe can_raw` first)"
+                  if "Errno 97" in said else "")
+        text = (f"no CAN interface {ch!r}{named} ({said}): plug the adapter in and bring it "
+                f"up with `sudo ip link set {ch} up type can bitrate 1000000`{kernel}, or "
+                f"name a serial SLCAN adapter with --port slcan:/dev/ttyACM0; {hint}")
     else:
         text = (f"cannot open CAN port {port!r} (python-can {kwargs or 'config'}: {said}): is "
                 f"the adapter plugged in and its vendor driver/library installed, and is the "
