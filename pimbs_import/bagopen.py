@@ -42,11 +42,45 @@ def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:
         reader.open()
     except reader_errors() as exc:
         raise LogError(f"{log}: not a readable ROS 1 .bag or ROS 2 bag directory "
-                       f"({short_text(exc)}); give a .bag file or the directory holding "
-                       "metadata.yaml") from None
+                       f"({not_a_bag_reason(Path(log)) or short_text(exc)}); give a .bag file "
+                       "or the directory holding metadata.yaml") from None
     if msg_dirs:
         _register(reader.typestore, _types_from_msg_dirs(msg_dirs))
     return reader
+
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+# first bytes of files people mistake for a bag, for the error line
+KNOWN_MAGIC = {b"\x89MCAP": "a ROS 2 .mcap storage file",
+               b"SQLite format 3\x00": "a ROS 2 .db3 storage file",
+               b"\x89PNG": "a PNG image", b"\xff\xd8\xff": "a JPEG image", b"%PDF": "a PDF",
+               b"PK\x03\x04": "a zip archive", b"\x1f\x8b": "a gzip archive",
+               b"\x28\xb5\x2f\xfd": "a zstd archive", b"PAR1": "a Parquet file"}
+
+
+def not_a_bag_reason(log: Path) -> str | None:
+    """What ``log`` is instead of a bag, in words, from its first bytes (None: it looks like
+    a bag, so the reader's own reason is the better one). ``rosbags`` decodes a file's first
+    line as text, which for a binary file gives a codec error that names no file format."""
+    if log.is_dir():
+        if not (log / "metadata.yaml").exists():
+            return ("a folder without metadata.yaml; a ROS 2 bag directory holds one "
+                    "(`ros2 bag reindex DIR` writes it for a bag that lost it)")
+        return None
+    try:
+        with open(log, "rb") as f:
+            head = f.read(16)
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror or exc}"
+    if head.startswith(ROS1_MAGIC):
+        return None if log.suffix == ".bag" else "a ROS 1 bag without the .bag suffix; rename it"
+    kind = next((what for magic, what in KNOWN_MAGIC.items() if head.startswith(magic)), None)
+    if kind and "ROS 2" in kind:
+        return f"{kind}; give the bag directory that holds it and its metadata.yaml"
+    if not head:
+        return "an empty file"
+    return (f"{kind or 'a file'} that does not start with {ROS1_MAGIC.decode().strip()!r} as "
+            "a ROS 1 bag does")
 
 
 def ensure_types(log: Path, reader: Any, topics: Mapping[str, str]) -> None:

@@ -23,7 +23,7 @@ from pimbs_import.bagopen import (
     short_text,
     topic_list,
 )
-from pimbs_import.fastdecode import FastDecoder
+from pimbs_import.fastdecode import DamagedMessage, FastDecoder
 from pimbs_import.mapping import Channel, LogMapping, MappingError, normalize_type
 
 __all__ = ["LogError", "Series", "read_series"]
@@ -112,7 +112,7 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
             msgtype = normalize_type(topics[topic].msgtype or "")
             try:
                 batches = list(fast.decode_many(raws, msgtype, reader.is2))
-            except (struct.error, UnicodeDecodeError) as exc:
+            except DamagedMessage as exc:
                 raise LogError(f"{log}: topic {topic}: a {msgtype} message is damaged "
                                f"({short_text(exc)}); nothing was imported. Copy the bag again "
                                "from the recording machine") from None

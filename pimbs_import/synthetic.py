@@ -135,7 +135,7 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
                    Arr(layout=Layout(dim=[], data_offset=0), data=temp))
 
     streams = [joint_states(), muscle_states()] + ([temperatures()] if spec.temperature else [])
-    _write(path, fmt, store, heapq.merge(*streams, key=lambda m: m[0]))
+    write_messages(path, fmt, store, heapq.merge(*streams, key=lambda m: m[0]))
     return Truth(theta=theta_hold, tension=tension_hold, length=length_hold,
                  hold_windows=[(_ns(spec.start_ns, a), _ns(spec.start_ns, b))
                                for a, b in windows])
@@ -145,7 +145,10 @@ def _ns(start: int, seconds: float) -> int:
     return start + int(round(seconds * 1e9))
 
 
-def _write(path: Path, fmt: str, store, messages) -> None:
+def write_messages(path: Path, fmt: str, store, messages) -> None:
+    """Write ``(receive ns, topic, msgtype, message)`` tuples, in time order, as a ROS 1
+    ``.bag`` (``fmt`` ros1) or a ROS 2 bag directory (sqlite3, mcap); ``store`` is the
+    ``rosbags`` typestore the messages were made with."""
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, not {fmt!r}")
     if fmt == "ros1":
