@@ -23,13 +23,16 @@ class LogError(ValueError):
 
 def reader_errors() -> tuple[type[BaseException], ...]:
     """Exceptions ``rosbags`` raises for a file that is not a bag or is damaged."""
+    import sqlite3
+
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as Ros1Error
     from rosbags.rosbag2 import ReaderError as Ros2Error
     from rosbags.serde import SerdeError
 
+    # OverflowError: a damaged .mcap record size sent to seek(); sqlite3: a damaged .db3
     return (AnyReaderError, Ros1Error, Ros2Error, SerdeError, UnicodeDecodeError,
-            FileNotFoundError, EOFError)
+            FileNotFoundError, EOFError, OverflowError, sqlite3.DatabaseError)
 
 
 def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:
@@ -41,9 +44,14 @@ def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:
         reader = AnyReader([Path(log)], default_typestore=get_typestore(Stores.LATEST))
         reader.open()
     except reader_errors() as exc:
-        raise LogError(f"{log}: not a readable ROS 1 .bag or ROS 2 bag directory "
-                       f"({not_a_bag_reason(Path(log)) or short_text(exc)}); give a .bag file "
-                       "or the directory holding metadata.yaml") from None
+        reason = not_a_bag_reason(Path(log))
+        if reason is None:  # a bag by its first bytes (or metadata.yaml): damaged
+            text = short_text(exc, drop=f"{log}/")
+            raise LogError(f"{log}: a bag that cannot be opened ({text}); copy it again from "
+                           "the recording machine (`rosbag reindex` / `ros2 bag reindex` "
+                           "rebuild the index of a bag whose recorder was cut off)") from None
+        raise LogError(f"{log}: not a readable ROS 1 .bag or ROS 2 bag directory ({reason}); "
+                       "give a .bag file or the directory holding metadata.yaml") from None
     if msg_dirs:
         _register(reader.typestore, _types_from_msg_dirs(msg_dirs))
     return reader
@@ -144,6 +152,10 @@ def describe_topics(topics: Mapping[str, Any]) -> Iterable[str]:
         yield f"{topic:<{width}}  {info.msgtype}  {info.msgcount} messages"
 
 
-def short_text(exc: BaseException) -> str:
+def short_text(exc: BaseException, drop: str = "") -> str:
+    """The exception's text cut to 120 characters, without ``drop`` (a path the line names
+    already)."""
     text = str(exc) or exc.__class__.__name__
+    if drop:
+        text = text.replace(drop, "")
     return text if len(text) <= 120 else text[:117] + "..."

@@ -107,6 +107,7 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                            f"mapped topics ({short_text(exc)}); nothing was imported. Copy the bag "
                            "again from the recording machine, or cut it to its readable part "
                            "(rosbag filter / ros2 bag convert) and import that") from None
+        _check_counts(log, counts, {t: topics[t].msgcount for t in by_topic})
         for topic, (stamps, raws) in kept.items():
             stamps_ns = np.asarray(stamps, dtype=np.int64)
             msgtype = normalize_type(topics[topic].msgtype or "")
@@ -158,6 +159,20 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                        + "; ".join(f"{q}: {sorted(pickers[q].raw_seen)[:12]}" for q in unused)
                        + ")")
     return out
+
+
+def _check_counts(log: Path, read: dict[str, int], listed: dict[str, int]) -> None:
+    """Every message the bag's index lists was read: a damaged ROS 2 .mcap chunk can end the
+    reader's pass early without an error, losing the rest of the log silently."""
+    short = {t: (read[t], n) for t, n in listed.items() if read[t] < n}
+    if short:
+        topic, (got, n) = next(iter(sorted(short.items())))
+        raise LogError(f"{log}: damaged or cut short: read only {got} of the {n} message(s) "
+                       f"its index lists on {topic}"
+                       + (f" (and {len(short) - 1} more topic(s))" if len(short) > 1 else "")
+                       + "; nothing was imported. Copy the bag again from the recording "
+                       "machine, or cut it to its readable part (rosbag filter / ros2 bag "
+                       "convert) and import that")
 
 
 def _header_time(log: Path, topic: str, msg: object) -> int:

@@ -232,6 +232,25 @@ def test_ros1_bag_damaged_mid_file(tmp_path, arm, where, fill):
     assert len(line) < 400
 
 
+@pytest.mark.parametrize("fmt,where", [("mcap", 0.1), ("mcap", 0.3), ("mcap", 0.5),
+                                       ("sqlite3", 0.5)])
+@pytest.mark.parametrize("fill", [b"\xff", b"\x00"], ids=["ff", "zeros"])
+def test_ros2_bag_damaged_mid_file(tmp_path, arm, fmt, where, fill):
+    """A damaged .mcap chunk can end rosbags' pass early without an error (zeros at 10 %:
+    85 of 800 joint states read); the import counts what it read against the index."""
+    log = _log_path(tmp_path, fmt)
+    write_log(log, arm, LogSpec(poses=2, hold_s=1.0, ramp_s=0.5), fmt)
+    (storage,) = (p for p in log.iterdir() if p.suffix in (".mcap", ".db3"))
+    with open(storage, "r+b") as f:
+        f.seek(int(storage.stat().st_size * where))
+        f.write(fill * 64)
+    before = set(tmp_path.iterdir())
+    line = _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before, str(log))
+    assert "nothing was imported" in line or (
+        "a bag that cannot be opened" in line and "malformed" in line)
+    assert len(line) < 400
+
+
 def test_binary_file_renamed_bag(tmp_path):
     png = tmp_path / "photo.bag"
     png.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)) * 8)
