@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import force_option, user_errors
 
 
 def _range(values: np.ndarray) -> str:
@@ -82,9 +82,24 @@ def pose_accuracy(rec) -> list[str]:
 @click.command("info")
 @click.argument("files", nargs=-1, required=True,
                 type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--adopt-metadata", "source", metavar="FROM",
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="give FILE the 'pimbs' metadata of the recording FROM (for a file that "
+                   "pandas or polars wrote without it): checked against FILE's columns, then "
+                   "FILE is rewritten atomically")
+@force_option()
 @user_errors
-def command(files: tuple[Path, ...]) -> None:
+def command(files: tuple[Path, ...], source: Path | None, force: bool) -> None:
     """Summarise recordings (robot, joints, muscles, rows, source, value ranges)."""
+    if source is not None:
+        from pimbs_recording.adopt import adopt_metadata
+
+        if len(files) != 1:
+            raise click.UsageError("--adopt-metadata takes one FILE")
+        adopt_metadata(files[0], source, force=force)
+        click.echo(f"adopted the metadata of {source} into {files[0]}")
+    elif force:
+        raise click.UsageError("--force only goes with --adopt-metadata")
     for i, path in enumerate(files):
         if i:
             click.echo()
