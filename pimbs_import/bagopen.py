@@ -58,10 +58,10 @@ def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:
 
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+# ROS 2 storage files, which rosbags also reads on their own (without metadata.yaml)
+ROS2_MAGIC = (b"\x89MCAP", b"SQLite format 3\x00")
 # first bytes of files people mistake for a bag, for the error line
-KNOWN_MAGIC = {b"\x89MCAP": "a ROS 2 .mcap storage file",
-               b"SQLite format 3\x00": "a ROS 2 .db3 storage file",
-               b"\x89PNG": "a PNG image", b"\xff\xd8\xff": "a JPEG image", b"%PDF": "a PDF",
+KNOWN_MAGIC = {b"\x89PNG": "a PNG image", b"\xff\xd8\xff": "a JPEG image", b"%PDF": "a PDF",
                b"PK\x03\x04": "a zip archive", b"\x1f\x8b": "a gzip archive",
                b"\x28\xb5\x2f\xfd": "a zstd archive", b"PAR1": "a Parquet file"}
 
@@ -82,9 +82,9 @@ def not_a_bag_reason(log: Path) -> str | None:
         return f"cannot be read: {exc.strerror or exc}"
     if head.startswith(ROS1_MAGIC):
         return None if log.suffix == ".bag" else "a ROS 1 bag without the .bag suffix; rename it"
+    if head.startswith(ROS2_MAGIC):
+        return None
     kind = next((what for magic, what in KNOWN_MAGIC.items() if head.startswith(magic)), None)
-    if kind and "ROS 2" in kind:
-        return f"{kind}; give the bag directory that holds it and its metadata.yaml"
     if not head:
         return "an empty file"
     return (f"{kind or 'a file'} that does not start with {ROS1_MAGIC.decode().strip()!r} as "

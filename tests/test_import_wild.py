@@ -261,11 +261,39 @@ def test_binary_file_renamed_bag(tmp_path):
                         "give a .bag file or the directory holding metadata.yaml")
         assert "a PNG image that does not start with '#ROSBAG V2.0'" in line
         assert "codec" not in line and len(line) < 300
-    folder = tmp_path / "not_a_bag"
-    folder.mkdir()
+
+
+@pytest.mark.parametrize("what,reason", [
+    ("empty file", "an empty file"),
+    ("ROS 1 bag named .orig", "a ROS 1 bag without the .bag suffix; rename it"),
+    ("folder", "a folder without metadata.yaml"),
+])
+def test_other_things_that_are_not_bags(tmp_path, arm, what, reason):
+    if what == "empty file":
+        log = tmp_path / "empty.bag"
+        log.write_bytes(b"")
+    elif what == "folder":
+        log = tmp_path / "not_a_bag"
+        log.mkdir()
+        (log / "notes.txt").write_text("x")
+    else:
+        write_log(tmp_path / "arm.bag", arm, LogSpec(poses=2, hold_s=1.0, ramp_s=0.5))
+        log = (tmp_path / "arm.bag").rename(tmp_path / "arm.bag.orig")
     before = set(tmp_path.iterdir())
-    _refused(_import(folder, tmp_path / "x.parquet"), tmp_path, before,
-             f"{folder}: not a readable ROS 1 .bag or ROS 2 bag directory")
+    _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before,
+             f"{log}: not a readable ROS 1 .bag or ROS 2 bag directory ({reason}")
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
+def test_a_ros2_storage_file_on_its_own_imports(tmp_path, arm, fmt):
+    """The .mcap or .db3 file without its folder's metadata.yaml is read as it is."""
+    log = _log_path(tmp_path, fmt)
+    write_log(log, arm, LogSpec(poses=2, hold_s=1.0, ramp_s=0.5), fmt)
+    (storage,) = (p for p in log.iterdir() if p.suffix in (".mcap", ".db3"))
+    alone = storage.rename(tmp_path / storage.name)
+    res = _import(alone, tmp_path / "x.parquet")
+    assert res.exit_code == 0, res.output
+    assert read_recording(tmp_path / "x.parquet").n_rows == 2
 
 
 @pytest.mark.parametrize("fmt", ["ros1", "mcap"])
