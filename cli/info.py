@@ -62,6 +62,9 @@ def pose_accuracy(rec) -> list[str]:
     Only meaningful where θ is measured (joint encoders); otherwise θ is itself a model
     estimate, which the line says.
     """
+    if rec.source == "import":  # theta_command is the measured pose: 0° says nothing
+        return ["  pose accuracy  — (an imported log has no commanded poses; theta_command "
+                "holds the measured pose)"]
     err = rec.theta - rec.theta_command
     ok = np.isfinite(err).all(axis=1)
     if not ok.any():

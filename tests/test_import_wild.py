@@ -168,6 +168,9 @@ def test_ros2_bag_without_message_definitions_imports(tmp_path, arm):
     assert res.exit_code == 0, res.output
     rec = read_recording(out)
     assert rec.n_rows == 3 and np.abs(rec.theta - truth.theta).max() < 2e-4
+    info = CliRunner().invoke(main, ["info", str(out)])
+    assert info.exit_code == 0 and "pose accuracy  — (an imported log has no commanded" in \
+        info.output and "0°" not in info.output
 
 
 def test_ros2_bag_without_the_definition_of_a_labs_own_type(tmp_path, arm):
