@@ -343,19 +343,26 @@ def test_single_value_float64_field_mapped(tmp_path, fmt):
     np.testing.assert_allclose(rec.tension, tension, atol=1e-9)
 
 
-def test_single_value_field_for_two_joints(tmp_path, arm):
-    """The same Float64 mapped to a two-joint robot: the joint it lacks, by name."""
+@pytest.mark.parametrize("order,robot,parts", [
+    (["shoulder_pitch"], ROBOT, ["topic /shoulder_angle (theta)", "['elbow_pitch']", "rename"]),
+    (None, "one", ["topic /shoulder_angle (theta) has no field 'name' naming its values",
+                   "order: [...]"]),
+], ids=["two joints", "no order"])
+def test_single_value_field_that_does_not_fit(tmp_path, order, robot, parts):
+    """The same Float64 mapped to a two-joint robot (the joint it lacks, by name), or
+    without the name of its value."""
     log = tmp_path / "arm.bag"
-    robot = _one_joint_robot(tmp_path)
-    one = ArmModel.load(robot)
+    one_path = _one_joint_robot(tmp_path)
+    one = ArmModel.load(one_path)
     theta = np.array([[0.3], [-0.2]])
     tension = np.stack([one.tension_distribution(t, np.full(2, 10.0)) for t in theta])
     _held_log(log, "ros1", one, theta, tension, theta_topic="float64")
-    mapping = _map(tmp_path, {"theta": {"topic": "/shoulder_angle", "type": "std_msgs/Float64",
-                                        "field": "data", "order": ["shoulder_pitch"]}})
+    theta_map = {"topic": "/shoulder_angle", "type": "std_msgs/Float64", "field": "data"}
+    mapping = _map(tmp_path, {"theta": {**theta_map, **({"order": order} if order else {})}})
     before = set(tmp_path.iterdir())
-    _refused(_import(log, tmp_path / "x.parquet", "--map", str(mapping)), tmp_path, before,
-             str(log), "topic /shoulder_angle (theta)", "['elbow_pitch']", "rename")
+    _refused(_import(log, tmp_path / "x.parquet", "--map", str(mapping),
+                     robot=ROBOT if robot == ROBOT else str(one_path)), tmp_path, before,
+             str(log), *parts)
 
 
 def test_order_longer_than_the_array(tmp_path, arm):
