@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from pimbs_cli.common import force_option, user_errors
+from pimbs_cli.common import user_errors
 
 
 def _range(values: np.ndarray) -> str:
@@ -90,10 +90,14 @@ def pose_accuracy(rec) -> list[str]:
               help="give FILE the 'pimbs' metadata of the recording FROM (for a file that "
                    "pandas or polars wrote without it): checked against FILE's columns, then "
                    "FILE is rewritten atomically")
-@force_option()
+@click.option("--force", is_flag=True,
+              help="with --adopt-metadata: replace the 'pimbs' metadata FILE already has")
 @user_errors
 def command(files: tuple[Path, ...], source: Path | None, force: bool) -> None:
-    """Summarise recordings (robot, joints, muscles, rows, source, value ranges)."""
+    """Summarise recordings (robot, joints, muscles, rows, source, value ranges).
+
+    With --adopt-metadata FROM, first give the one FILE the metadata of FROM, the recording
+    its rows came from (pandas and polars drop it unless told to keep it)."""
     if source is not None:
         from pimbs_recording.adopt import adopt_metadata
 
