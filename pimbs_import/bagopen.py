@@ -138,9 +138,15 @@ def _types_from_msg_dirs(dirs: Sequence[Path]) -> dict[str, Any]:
     return types
 
 
-def topic_list(topics: Mapping[str, Any], shown: int = SHOWN_TOPICS) -> str:
-    """``/a (type), /b (type) and 92 more`` for an error line."""
-    items = [f"{t} ({i.msgtype})" for t, i in sorted(topics.items())]
+def topic_list(topics: Mapping[str, Any], shown: int = SHOWN_TOPICS,
+               prefer: str | None = None) -> str:
+    """``/a (type), /b (type) and 92 more`` for an error line; topics of type ``prefer``
+    (the type the mapping expects: the likely right topic) are named first."""
+    from pimbs_import.mapping import normalize_type
+
+    ordered = sorted(topics.items(),
+                     key=lambda ti: (normalize_type(ti[1].msgtype or "") != prefer, ti[0]))
+    items = [f"{t} ({i.msgtype})" for t, i in ordered]
     more = len(items) - shown
     return ", ".join(items[:shown]) + (f" and {more} more" if more > 0 else "")
 

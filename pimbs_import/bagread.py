@@ -59,10 +59,11 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                 if q == "temperature":
                     del wanted[q]
                     continue
+                listed = topic_list(topics, prefer=ch.type)
                 raise LogError(f"{log}: no topic {ch.topic} for {q} (the log has "
-                               f"{len(topics)} topic(s): {topic_list(topics)}); record it, or "
-                               f"map {q} to another topic with --map (see all topics with "
-                               "pimbs import LOG --list-topics)")
+                               f"{len(topics)} topic(s): {listed}); record it, or map {q} to "
+                               "another topic with --map (see all topics with pimbs import "
+                               "LOG --list-topics)")
             found = normalize_type(topics[ch.topic].msgtype or "")
             if found != ch.type:
                 raise LogError(f"{log}: topic {ch.topic} ({q}) has type {found}, expected "

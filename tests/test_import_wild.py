@@ -302,23 +302,28 @@ def test_a_ros2_storage_file_on_its_own_imports(tmp_path, arm, fmt):
 @pytest.mark.parametrize("fmt", ["ros1", "mcap"])
 def test_many_topics_none_mapped(tmp_path, fmt):
     """A robot's whole bag (90 topics), none of them the convention's: a short line naming a
-    handful and how to list them all; --list-topics lists all 90."""
+    handful, the JointState topic (the likely one to map) first, and how to list them all;
+    --list-topics lists all 90."""
     store = _store(fmt)
     Float64 = store.types["std_msgs/msg/Float64"]
-    topics = [f"/robot/sensor_{k:02d}/value" for k in range(90)]
+    topics = [f"/robot/sensor_{k:02d}/value" for k in range(89)]
     log = _log_path(tmp_path, fmt, "whole_robot")
-    write_messages(log, fmt, store, [(START_NS + k * 1000, t, "std_msgs/msg/Float64",
-                                      Float64(data=float(k))) for k, t in enumerate(topics)])
+    messages = [(START_NS + k * 1000, t, "std_msgs/msg/Float64", Float64(data=float(k)))
+                for k, t in enumerate(topics)]
+    messages.append((START_NS + 10**6, "/robot/zz_arm/joint_states", "sensor_msgs/msg/JointState",
+                     _joint_state(store, fmt, START_NS, ["j1"], [0.5])))
+    write_messages(log, fmt, store, messages)
     before = set(tmp_path.iterdir())
     line = _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before, str(log),
-                    "no topic /joint_states for theta", "the log has 90 topic(s)",
-                    "and 85 more", "--map", "--list-topics")
-    assert sum(t in line for t in topics) == 5 and len(line) < 600
+                    "no topic /joint_states for theta", "the log has 90 topic(s): "
+                    "/robot/zz_arm/joint_states (sensor_msgs/", "and 85 more", "--map",
+                    "--list-topics")
+    assert sum(t in line for t in topics) == 4 and len(line) < 600
     res = CliRunner().invoke(main, ["import", str(log), "--list-topics"])
     assert res.exit_code == 0, res.output
     listed = res.output.strip().splitlines()
-    assert len(listed) == 90 and all("std_msgs/msg/Float64  1 messages" in s for s in listed)
-    assert sorted(s.split()[0] for s in listed) == topics
+    assert len(listed) == 90 and sum("std_msgs/msg/Float64  1 messages" in s for s in listed) == 89
+    assert sorted(s.split()[0] for s in listed) == [*topics, "/robot/zz_arm/joint_states"]
 
 
 # --- mappings that do not fit the log -------------------------------------------------------
