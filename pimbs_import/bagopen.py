@@ -30,9 +30,10 @@ def reader_errors() -> tuple[type[BaseException], ...]:
     from rosbags.rosbag2 import ReaderError as Ros2Error
     from rosbags.serde import SerdeError
 
-    # OverflowError: a damaged .mcap record size sent to seek(); sqlite3: a damaged .db3
+    # OverflowError: a damaged .mcap record size sent to seek(); sqlite3: a damaged .db3;
+    # OSError (bz2, and the disk itself) and RuntimeError (lz4): a damaged compressed chunk
     return (AnyReaderError, Ros1Error, Ros2Error, SerdeError, UnicodeDecodeError,
-            FileNotFoundError, EOFError, OverflowError, sqlite3.DatabaseError)
+            OSError, EOFError, OverflowError, sqlite3.DatabaseError, RuntimeError)
 
 
 def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:

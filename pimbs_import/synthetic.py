@@ -145,16 +145,23 @@ def _ns(start: int, seconds: float) -> int:
     return start + int(round(seconds * 1e9))
 
 
-def write_messages(path: Path, fmt: str, store, messages) -> None:
+def write_messages(path: Path, fmt: str, store, messages, compression: str | None = None
+                   ) -> None:
     """Write ``(receive ns, topic, msgtype, message)`` tuples, in time order, as a ROS 1
     ``.bag`` (``fmt`` ros1) or a ROS 2 bag directory (sqlite3, mcap); ``store`` is the
-    ``rosbags`` typestore the messages were made with."""
+    ``rosbags`` typestore the messages were made with. ``compression`` ("bz2", "lz4"):
+    compressed ROS 1 chunks, as ``rosbag record -j`` / ``--lz4`` write them."""
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, not {fmt!r}")
+    if compression is not None and fmt != "ros1":
+        raise ValueError("compression is for ROS 1 bags (fmt ros1)")
     if fmt == "ros1":
         from rosbags.rosbag1 import Writer
 
         writer, serialize = Writer(path), store.serialize_ros1
+        if compression is not None:
+            writer.set_compression(Writer.CompressionFormat[compression.upper()])
+            writer.chunk_threshold = 16 * 1024  # several chunks even in a short test log
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 

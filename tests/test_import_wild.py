@@ -59,7 +59,8 @@ def _joint_state(store, fmt: str, ns: int, names, position, effort=()):
 
 def _held_log(path: Path, fmt: str, arm: ArmModel, theta: np.ndarray, tension: np.ndarray,
               *, hold_s: float = 1.2, rate: float = 50.0, theta_topic: str = "joints",
-              header_back_s: float | None = None, nan_tension: int = 0) -> None:
+              header_back_s: float | None = None, nan_tension: int = 0,
+              compression: str | None = None) -> None:
     """A log of ``arm`` holding each pose ``theta[k]`` at ``tension[k]`` for ``hold_s``
     (jumping between them): ``/joint_states`` and ``/muscle_states`` as JointState, or the
     single joint's angle as ``std_msgs/Float64`` on ``/shoulder_angle`` (``theta_topic``
@@ -88,7 +89,7 @@ def _held_log(path: Path, fmt: str, arm: ArmModel, theta: np.ndarray, tension: n
                 effort[1] = np.nan
             messages.append((ns + 1000, "/muscle_states", "sensor_msgs/msg/JointState",
                              _joint_state(store, fmt, ns + 1000, arm.muscles, length, effort)))
-    write_messages(path, fmt, store, messages)
+    write_messages(path, fmt, store, messages, compression)
 
 
 def _strip_definitions(bag: Path) -> None:
@@ -233,6 +234,28 @@ def test_ros1_bag_damaged_mid_file(tmp_path, arm, where, fill):
     line = _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before, str(log),
                     "nothing was imported", "Copy the bag again")
     assert len(line) < 400
+
+
+@pytest.mark.parametrize("compression", ["bz2", "lz4"])
+def test_compressed_ros1_bag_damaged_mid_file(tmp_path, arm, compression):
+    """`rosbag record -j` / `--lz4` bags: read as they are, refused by name once damaged (the
+    decompressors' own errors named no file)."""
+    theta = np.array([[0.2, -0.1], [-0.2, 0.3], [0.1, 0.1]])
+    tension = np.stack([arm.tension_distribution(t, np.full(4, 10.0)) for t in theta])
+    good = tmp_path / "good.bag"
+    _held_log(good, "ros1", arm, theta, tension, compression=compression)
+    res = _import(good, tmp_path / "good.parquet")
+    assert res.exit_code == 0, res.output
+    np.testing.assert_allclose(read_recording(tmp_path / "good.parquet").theta, theta)
+    log = tmp_path / "damaged.bag"
+    shutil.copy(good, log)
+    with open(log, "r+b") as f:
+        f.seek(good.stat().st_size // 2)
+        f.write(b"\xff" * 64)
+    before = set(tmp_path.iterdir())
+    _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before, str(log),
+             "damaged after", "readable message(s)", "nothing was imported",
+             "Copy the bag again")
 
 
 @pytest.mark.parametrize("fmt,where", [("mcap", 0.1), ("mcap", 0.3), ("mcap", 0.5),
