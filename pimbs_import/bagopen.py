@@ -30,10 +30,28 @@ def reader_errors() -> tuple[type[BaseException], ...]:
     from rosbags.rosbag2 import ReaderError as Ros2Error
     from rosbags.serde import SerdeError
 
-    # OverflowError: a damaged .mcap record size sent to seek(); sqlite3: a damaged .db3;
-    # OSError (bz2, and the disk itself) and RuntimeError (lz4): a damaged compressed chunk
+    # OverflowError: a damaged .mcap record size sent to seek(); sqlite3 / apsw: a damaged
+    # .db3; OSError (bz2, and the disk itself), RuntimeError (lz4) and the zstd modules'
+    # errors: a damaged compressed chunk or message
     return (AnyReaderError, Ros1Error, Ros2Error, SerdeError, UnicodeDecodeError,
-            OSError, EOFError, OverflowError, sqlite3.DatabaseError, RuntimeError)
+            OSError, EOFError, OverflowError, sqlite3.DatabaseError, RuntimeError,
+            *_optional_errors())
+
+
+def _optional_errors() -> tuple[type[BaseException], ...]:
+    """Errors of the libraries ``rosbags`` reads with, which depend on its version and the
+    Python version (apsw for sqlite3 storage; zstd from the standard library, its backport or
+    zstandard)."""
+    import importlib
+
+    found = []
+    for module, name in (("apsw", "Error"), ("compression.zstd", "ZstdError"),
+                         ("backports.zstd", "ZstdError"), ("zstandard", "ZstdError")):
+        try:
+            found.append(getattr(importlib.import_module(module), name))
+        except (ImportError, AttributeError):
+            continue
+    return tuple(found)
 
 
 def open_log(log: Path, msg_dirs: Sequence[Path] = ()) -> Any:

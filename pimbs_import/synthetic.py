@@ -149,12 +149,13 @@ def write_messages(path: Path, fmt: str, store, messages, compression: str | Non
                    ) -> None:
     """Write ``(receive ns, topic, msgtype, message)`` tuples, in time order, as a ROS 1
     ``.bag`` (``fmt`` ros1) or a ROS 2 bag directory (sqlite3, mcap); ``store`` is the
-    ``rosbags`` typestore the messages were made with. ``compression`` ("bz2", "lz4"):
-    compressed ROS 1 chunks, as ``rosbag record -j`` / ``--lz4`` write them."""
+    ``rosbags`` typestore the messages were made with. ``compression``: "bz2" or "lz4" for
+    compressed ROS 1 chunks (``rosbag record -j`` / ``--lz4``), "zstd" for ROS 2 messages
+    compressed one by one (``ros2 bag record --compression-mode message``)."""
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, not {fmt!r}")
-    if compression is not None and fmt != "ros1":
-        raise ValueError("compression is for ROS 1 bags (fmt ros1)")
+    if compression not in ((None, "bz2", "lz4") if fmt == "ros1" else (None, "zstd")):
+        raise ValueError(f"compression {compression!r} is not one for {fmt}")
     if fmt == "ros1":
         from rosbags.rosbag1 import Writer
 
@@ -167,6 +168,10 @@ def write_messages(path: Path, fmt: str, store, messages, compression: str | Non
 
         plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
         writer, serialize = Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
+        if compression is not None:
+            from rosbags.rosbag2 import CompressionFormat, CompressionMode
+
+            writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
     with writer:
         conns = {}
         for recv, topic, msgtype, msg in messages:

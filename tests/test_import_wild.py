@@ -236,21 +236,24 @@ def test_ros1_bag_damaged_mid_file(tmp_path, arm, where, fill):
     assert len(line) < 400
 
 
-@pytest.mark.parametrize("compression", ["bz2", "lz4"])
-def test_compressed_ros1_bag_damaged_mid_file(tmp_path, arm, compression):
-    """`rosbag record -j` / `--lz4` bags: read as they are, refused by name once damaged (the
-    decompressors' own errors named no file)."""
+@pytest.mark.parametrize("fmt,compression", [("ros1", "bz2"), ("ros1", "lz4"),
+                                             ("mcap", "zstd")])
+def test_compressed_bag_damaged_mid_file(tmp_path, arm, fmt, compression):
+    """`rosbag record -j` / `--lz4` and zstd-compressed ROS 2 bags: read as they are,
+    refused by name once damaged (the decompressors' own errors named no file, or came out
+    as tracebacks)."""
     theta = np.array([[0.2, -0.1], [-0.2, 0.3], [0.1, 0.1]])
     tension = np.stack([arm.tension_distribution(t, np.full(4, 10.0)) for t in theta])
-    good = tmp_path / "good.bag"
-    _held_log(good, "ros1", arm, theta, tension, compression=compression)
+    good = _log_path(tmp_path, fmt, "good")
+    _held_log(good, fmt, arm, theta, tension, compression=compression)
     res = _import(good, tmp_path / "good.parquet")
     assert res.exit_code == 0, res.output
     np.testing.assert_allclose(read_recording(tmp_path / "good.parquet").theta, theta)
-    log = tmp_path / "damaged.bag"
-    shutil.copy(good, log)
-    with open(log, "r+b") as f:
-        f.seek(good.stat().st_size // 2)
+    log = _log_path(tmp_path, fmt, "damaged")
+    (shutil.copy if fmt == "ros1" else shutil.copytree)(good, log)
+    storage = log if fmt == "ros1" else next(log.glob("*.mcap"))
+    with open(storage, "r+b") as f:
+        f.seek(storage.stat().st_size * 3 // 10)
         f.write(b"\xff" * 64)
     before = set(tmp_path.iterdir())
     _refused(_import(log, tmp_path / "x.parquet"), tmp_path, before, str(log),
