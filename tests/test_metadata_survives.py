@@ -42,6 +42,7 @@ def _info(*args: str):
 
 def _one_error(res) -> str:
     assert res.exit_code == 1, res.output
+    assert isinstance(res.exception, SystemExit), repr(res.exception)  # no escaped exception
     assert "Traceback" not in res.output
     lines = res.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error: "), res.output
