@@ -45,8 +45,9 @@ def adopt_metadata(path: str | Path, source: str | Path, *, force: bool = False)
         validate_table(table, meta, path)
     except RecordingError as exc:
         raise RecordingError(
-            path, f"does not fit the metadata of {source}: {exc.rule}", exc.column,
+            path, f"cannot take the metadata of {source}: {exc.rule}", exc.column,
             hint=f"{source} has joints {origin.joints} and muscles {origin.muscles}; adopt the "
-                 "metadata of the recording these rows came from") from None
+                 "metadata of the recording these rows came from, and keep its required "
+                 "columns and its sample order") from None
     write_recording(path, table, meta)
     return read_recording(path)

@@ -90,7 +90,8 @@ def test_adopt_metadata_restores_a_filtered_file(tmp_path):
         "part.parquet", "rec.parquet"]
 
 
-@pytest.mark.parametrize("case", ["other robot", "not a recording", "already has it"])
+@pytest.mark.parametrize("case", ["other robot", "rows sorted", "not a recording",
+                                  "already has it"])
 def test_adopt_refusals_leave_the_file_as_it_was(tmp_path, case):
     rec = tmp_path / "rec.parquet"
     _recording(rec)
@@ -99,9 +100,16 @@ def test_adopt_refusals_leave_the_file_as_it_was(tmp_path, case):
     if case == "other robot":
         source = tmp_path / "five.parquet"
         _recording(source, joints=["a", "b", "c", "d", "e"], muscles=MUSCLES)
-        expect = [f"{part}: column 'theta': does not fit the metadata of {source}: lists have "
+        expect = [f"{part}: column 'theta': cannot take the metadata of {source}: lists have "
                   "length 2, expected 5", "adopt the metadata of the recording these rows "
                   "came from"]
+    elif case == "rows sorted":
+        table = pq.read_table(part)
+        pq.write_table(table.sort_by([("settle_s", "ascending")]), part)  # meta dropped
+        source = rec
+        expect = [f"{part}: column 'sample': cannot take the metadata of {source}: must be "
+                  "non-negative and strictly increasing", "keep its required columns and its "
+                  "sample order"]
     elif case == "not a recording":
         source = tmp_path / "stripped_too.parquet"
         _stripped_filter(rec, source)
