@@ -87,9 +87,28 @@ def pose_accuracy(rec) -> list[str]:
 @click.command("info")
 @click.argument("files", nargs=-1, required=True,
                 type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--adopt-metadata", "source", metavar="FROM",
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="give FILE the 'pimbs' metadata of the recording FROM (for a file that "
+                   "pandas or polars wrote without it): checked against FILE's columns, then "
+                   "FILE is rewritten atomically")
+@click.option("--force", is_flag=True,
+              help="with --adopt-metadata: replace the 'pimbs' metadata FILE already has")
 @user_errors
-def command(files: tuple[Path, ...]) -> None:
-    """Summarise recordings (robot, joints, muscles, rows, source, value ranges)."""
+def command(files: tuple[Path, ...], source: Path | None, force: bool) -> None:
+    """Summarise recordings (robot, joints, muscles, rows, source, value ranges).
+
+    With --adopt-metadata FROM, first give the one FILE the metadata of FROM, the recording
+    its rows came from (pandas and polars drop it unless told to keep it)."""
+    if source is not None:
+        from pimbs_recording.adopt import adopt_metadata
+
+        if len(files) != 1:
+            raise click.UsageError("--adopt-metadata takes one FILE")
+        adopt_metadata(files[0], source, force=force)
+        click.echo(f"adopted the metadata of {source} into {files[0]}")
+    elif force:
+        raise click.UsageError("--force only goes with --adopt-metadata")
     for i, path in enumerate(files):
         if i:
             click.echo()

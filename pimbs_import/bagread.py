@@ -23,7 +23,7 @@ from pimbs_import.bagopen import (
     short_text,
     topic_list,
 )
-from pimbs_import.fastdecode import FastDecoder
+from pimbs_import.fastdecode import DamagedMessage, FastDecoder
 from pimbs_import.mapping import Channel, LogMapping, MappingError, normalize_type
 
 __all__ = ["LogError", "Series", "read_series"]
@@ -59,10 +59,11 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                 if q == "temperature":
                     del wanted[q]
                     continue
+                listed = topic_list(topics, prefer=ch.type)
                 raise LogError(f"{log}: no topic {ch.topic} for {q} (the log has "
-                               f"{len(topics)} topic(s): {topic_list(topics)}); record it, or "
-                               f"map {q} to another topic with --map (see all topics with "
-                               "pimbs import LOG --list-topics)")
+                               f"{len(topics)} topic(s): {listed}); record it, or map {q} to "
+                               "another topic with --map (see all topics with pimbs import "
+                               "LOG --list-topics)")
             found = normalize_type(topics[ch.topic].msgtype or "")
             if found != ch.type:
                 raise LogError(f"{log}: topic {ch.topic} ({q}) has type {found}, expected "
@@ -107,12 +108,13 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                            f"mapped topics ({short_text(exc)}); nothing was imported. Copy the bag "
                            "again from the recording machine, or cut it to its readable part "
                            "(rosbag filter / ros2 bag convert) and import that") from None
+        _check_counts(log, counts, {t: topics[t].msgcount for t in by_topic})
         for topic, (stamps, raws) in kept.items():
             stamps_ns = np.asarray(stamps, dtype=np.int64)
             msgtype = normalize_type(topics[topic].msgtype or "")
             try:
                 batches = list(fast.decode_many(raws, msgtype, reader.is2))
-            except (struct.error, UnicodeDecodeError) as exc:
+            except DamagedMessage as exc:
                 raise LogError(f"{log}: topic {topic}: a {msgtype} message is damaged "
                                f"({short_text(exc)}); nothing was imported. Copy the bag again "
                                "from the recording machine") from None
@@ -158,6 +160,20 @@ def read_series(log: Path, mapping: LogMapping, joints: Sequence[str], muscles: 
                        + "; ".join(f"{q}: {sorted(pickers[q].raw_seen)[:12]}" for q in unused)
                        + ")")
     return out
+
+
+def _check_counts(log: Path, read: dict[str, int], listed: dict[str, int]) -> None:
+    """Every message the bag's index lists was read: a damaged ROS 2 .mcap chunk can end the
+    reader's pass early without an error, losing the rest of the log silently."""
+    short = {t: (read[t], n) for t, n in listed.items() if read[t] < n}
+    if short:
+        topic, (got, n) = next(iter(sorted(short.items())))
+        raise LogError(f"{log}: damaged or cut short: read only {got} of the {n} message(s) "
+                       f"its index lists on {topic}"
+                       + (f" (and {len(short) - 1} more topic(s))" if len(short) > 1 else "")
+                       + "; nothing was imported. Copy the bag again from the recording "
+                       "machine, or cut it to its readable part (rosbag filter / ros2 bag "
+                       "convert) and import that")
 
 
 def _header_time(log: Path, topic: str, msg: object) -> int:

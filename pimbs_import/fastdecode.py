@@ -22,6 +22,15 @@ import numpy as np
 _SUPPORTED = ("sensor_msgs/msg/JointState", "std_msgs/msg/Float64MultiArray")
 
 
+class DamagedMessage(ValueError):
+    """A message's bytes do not parse as its type, or parse to fewer bytes than it has (ROS 1
+    and CDR carry no checksum; a length that does not add up is the one sign of damage)."""
+
+    def __init__(self, index: int, reason: str) -> None:
+        super().__init__(f"message {index + 1}: {reason}")
+        self.index = index
+
+
 @dataclass
 class _Stamp:
     sec: int
@@ -62,6 +71,14 @@ class _Cursor:
         self.little = little
         self.u32 = struct.Struct("<I" if little else ">I")
         self.f8 = np.dtype("<f8" if little else ">f8")
+
+    def check_end(self) -> None:
+        """The whole buffer was read (CDR: up to 3 bytes of trailing alignment, as
+        ``rosbags`` allows)."""
+        left = len(self.raw) - self.pos
+        if left < 0 or left > (3 if self.cdr else 0):
+            raise ValueError(f"{len(self.raw)} bytes, of which the type's fields take "
+                             f"{self.pos}")
 
     def align(self, n: int) -> None:
         if self.cdr:
@@ -123,11 +140,12 @@ class FastDecoder:
         return msgtype in _SUPPORTED
 
     def decode(self, raw: bytes | memoryview, msgtype: str, cdr: bool) -> object | None:
-        if msgtype == _SUPPORTED[0]:
-            return self._joint_state(_Cursor(raw, cdr))
-        if msgtype == _SUPPORTED[1]:
-            return self._float_array(_Cursor(raw, cdr))
-        return None
+        if msgtype not in _SUPPORTED:
+            return None
+        c = _Cursor(raw, cdr)
+        msg = self._joint_state(c) if msgtype == _SUPPORTED[0] else self._float_array(c)
+        c.check_end()
+        return msg
 
     def _joint_state(self, c: _Cursor) -> JointStateMsg:
         if not c.cdr:
@@ -160,7 +178,7 @@ class FastDecoder:
         batches: list[Batch] = []
         while len(pending) and len(batches) < max_layouts:
             first = int(pending[0])
-            layout = self._layout(raws[first], msgtype, cdr)
+            layout = _guarded(first, self._layout, raws[first], msgtype, cdr)
             same = pending[lengths[pending] == lengths[first]]
             block = np.frombuffer(b"".join([raws[i] for i in same]), np.uint8).reshape(
                 len(same), lengths[first])
@@ -168,7 +186,7 @@ class FastDecoder:
             batches.append(_batch(same[ok], block[ok], layout))
             pending = np.setdiff1d(pending, same[ok], assume_unique=True)
         for i in pending:  # layouts beyond max_layouts: one message at a time
-            msg = self.decode(raws[i], msgtype, cdr)
+            msg = _guarded(int(i), self.decode, raws[i], msgtype, cdr)
             batches.append(_single(int(i), msg))
         return batches
 
@@ -200,6 +218,7 @@ class FastDecoder:
             fixed.append(range(c.pos, c.pos + 4))
             values = c.float64s()
             arrays[name] = (c.pos - 8 * len(values), len(values))
+        c.check_end()
         return _Layout(fixed=np.fromiter((i for r in fixed for i in r), dtype=np.int64),
                        arrays=arrays, stamp=stamp, name=names, little=c.little)
 
@@ -220,6 +239,15 @@ class FastDecoder:
             c.uint32()
         c.uint32()  # layout.data_offset
         return Float64ArrayMsg(c.float64s())
+
+
+def _guarded(index: int, decode, *args):
+    """``decode(*args)``, its parse errors (a count past the end, bytes that are no text, a
+    length that does not add up) raised as :class:`DamagedMessage` of message ``index``."""
+    try:
+        return decode(*args)
+    except (struct.error, ValueError, IndexError) as exc:
+        raise DamagedMessage(index, str(exc) or exc.__class__.__name__) from None
 
 
 def _batch(rows: np.ndarray, block: np.ndarray, layout: _Layout) -> Batch:

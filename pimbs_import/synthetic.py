@@ -135,7 +135,7 @@ def write_log(path: Path, arm: ArmModel, spec: LogSpec, fmt: str = "ros1") -> Tr
                    Arr(layout=Layout(dim=[], data_offset=0), data=temp))
 
     streams = [joint_states(), muscle_states()] + ([temperatures()] if spec.temperature else [])
-    _write(path, fmt, store, heapq.merge(*streams, key=lambda m: m[0]))
+    write_messages(path, fmt, store, heapq.merge(*streams, key=lambda m: m[0]))
     return Truth(theta=theta_hold, tension=tension_hold, length=length_hold,
                  hold_windows=[(_ns(spec.start_ns, a), _ns(spec.start_ns, b))
                                for a, b in windows])
@@ -145,18 +145,33 @@ def _ns(start: int, seconds: float) -> int:
     return start + int(round(seconds * 1e9))
 
 
-def _write(path: Path, fmt: str, store, messages) -> None:
+def write_messages(path: Path, fmt: str, store, messages, compression: str | None = None
+                   ) -> None:
+    """Write ``(receive ns, topic, msgtype, message)`` tuples, in time order, as a ROS 1
+    ``.bag`` (``fmt`` ros1) or a ROS 2 bag directory (sqlite3, mcap); ``store`` is the
+    ``rosbags`` typestore the messages were made with. ``compression``: "bz2" or "lz4" for
+    compressed ROS 1 chunks (``rosbag record -j`` / ``--lz4``), "zstd" for ROS 2 messages
+    compressed one by one (``ros2 bag record --compression-mode message``)."""
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, not {fmt!r}")
+    if compression not in ((None, "bz2", "lz4") if fmt == "ros1" else (None, "zstd")):
+        raise ValueError(f"compression {compression!r} is not one for {fmt}")
     if fmt == "ros1":
         from rosbags.rosbag1 import Writer
 
         writer, serialize = Writer(path), store.serialize_ros1
+        if compression is not None:
+            writer.set_compression(Writer.CompressionFormat[compression.upper()])
+            writer.chunk_threshold = 16 * 1024  # several chunks even in a short test log
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
         writer, serialize = Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
+        if compression is not None:
+            from rosbags.rosbag2 import CompressionFormat, CompressionMode
+
+            writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
     with writer:
         conns = {}
         for recv, topic, msgtype, msg in messages:

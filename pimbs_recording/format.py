@@ -184,23 +184,34 @@ def read_recording(path: str | Path) -> Recording:
         raise RecordingError(path, "no such file", hint="check the path")
     if path.is_dir():
         raise RecordingError(path, "is a directory, not a Parquet recording")
-    try:
-        pf = pq.ParquetFile(path)
-        table = pf.read()
-        raw_meta = pf.schema_arrow.metadata or {}
-    except (pa.ArrowInvalid, OSError) as exc:
-        raise RecordingError(
-            path, f"not a readable Parquet file ({exc})",
-            hint="a recording is one Apache Parquet file; was the copy truncated?") from exc
-    meta = _parse_meta(path, raw_meta)
+    table, raw_meta, writer = read_parquet(path)
+    meta = _parse_meta(path, raw_meta, writer)
     table = validate_table(table, meta, path)
     return Recording(table=table, meta=meta, path=path)
 
 
-def _parse_meta(path: Path | None, raw: Mapping[bytes, bytes]) -> dict[str, Any]:
+def read_parquet(path: Path) -> tuple[pa.Table, dict[bytes, bytes], str]:
+    """(table, key-value metadata, the writing library's name) of any Parquet file; a
+    :class:`RecordingError` naming the file if it is not one."""
+    try:
+        pf = pq.ParquetFile(path)
+        table = pf.read()
+        # the Parquet footer's key-value metadata: pyarrow also copies it into the Arrow
+        # schema, but polars (write_parquet(metadata=...)) writes it only to the footer
+        raw_meta = {**(pf.schema_arrow.metadata or {}), **(pf.metadata.metadata or {})}
+        writer = pf.metadata.created_by or ""
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise RecordingError(
+            path, f"not a readable Parquet file ({exc})",
+            hint="a recording is one Apache Parquet file; was the copy truncated?") from exc
+    return table, raw_meta, writer
+
+
+def _parse_meta(path: Path | None, raw: Mapping[bytes, bytes],
+                writer: str = "") -> dict[str, Any]:
     if META_KEY not in raw:
         raise RecordingError(path, "file metadata has no 'pimbs' key",
-                             hint="the key-value metadata must hold a JSON object under 'pimbs'")
+                             hint=_lost_meta_hint(path, raw, writer))
     try:
         meta = json.loads(raw[META_KEY])
     except (ValueError, UnicodeDecodeError) as exc:
@@ -209,6 +220,18 @@ def _parse_meta(path: Path | None, raw: Mapping[bytes, bytes]) -> dict[str, Any]
         raise RecordingError(path, "metadata 'pimbs' must be a JSON object")
     _check_meta(path, meta)
     return meta
+
+
+def _lost_meta_hint(path: Path | None, raw: Mapping[bytes, bytes], writer: str) -> str:
+    """How to get the metadata back: pandas and polars write Parquet without the keys of
+    the file they read unless told to keep them (docs/recording-format.md)."""
+    by = ("written by pandas, which drops it unless told to keep it; "
+          if b"pandas" in raw else "written by polars, which drops it unless told to keep it; "
+          if writer.lower().startswith("polars") else "")
+    name = path if path is not None else "FILE"
+    return (f"{by}restore it from the recording these rows came from with `pimbs info {name} "
+            "--adopt-metadata ORIGINAL.parquet`; docs/recording-format.md shows how to keep "
+            "it when writing from pandas or polars")
 
 
 def _check_meta(path: Path | None, meta: Mapping[str, Any]) -> None:
