@@ -514,17 +514,20 @@ class ArmDriver:
         """Send ``down``'s arming frames and a relax; the ones still not armed after
         ``timeout_s`` (a few state reports) as their boards report them."""
         send = getattr(self.transport, "send_despite_fault", self.transport.send)
-        frames = [f for i in down
-                  for f in self._proto[i].setup(i, self._board_limits(i))]  # type: ignore
-        frames += [f for i in down for f in self._proto[i].command(i, "relax")]  # type: ignore
+        arm = [f for i in down
+               for f in self._proto[i].setup(i, self._board_limits(i))]  # type: ignore
+        relax = [f for i, p in enumerate(self._proto)
+                 for f in p.command(i, "relax")]  # type: ignore[union-attr]
         deadline = time.monotonic() + timeout_s
         try:
-            for frame in frames:
+            for frame in arm + relax:
                 send(*frame)
             while time.monotonic() < deadline:
                 self._pump(0.05)
                 if all(self._proto[i].armed(self._rx[i].state) for i in down):  # type: ignore
                     break
+                for frame in relax:  # keep every board fed (and relaxed) while waiting
+                    send(*frame)
         except Exception:  # noqa: BLE001 - the link failed now: report the states as seen
             pass
         return [i for i in down if not self._proto[i].armed(self._rx[i].state)]  # type: ignore
