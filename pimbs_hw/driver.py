@@ -35,6 +35,7 @@ from pimbs_hw.protocol.board import (
 )
 from pimbs_hw.protocol.codec import Fault
 from pimbs_hw.safety import (
+    BoardFault,
     BoardSilent,
     CorruptFrames,
     FramesDropped,

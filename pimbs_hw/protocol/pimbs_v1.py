@@ -21,8 +21,8 @@ from pimbs_hw.protocol.board import (
     Update,
 )
 from pimbs_hw.protocol.codec import (
-    CodecError,
     MESSAGE_TYPES,
+    CodecError,
     JointStatus,
     Message,
     PositionCommand,
