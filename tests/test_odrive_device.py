@@ -298,3 +298,25 @@ def test_odrive_node_ids_up_to_63_are_accepted(tmp_path):
     protos = protocols_for(load_robot(_robot(tmp_path, {"m0": 63, "m1": 40, "m2": 0})))
     used = set().union(*(p.ids_used(i) for p in protos for i in p.indices))
     assert max(used) == 0x7FF and np.isin([0x000, 0x500, 0x7E0], list(used)).all()
+
+
+def test_axis_idled_by_another_node_is_reported_and_rearmed(bus):
+    """Someone else on the bus (odrivetool, a second host) idles node 2: no error, IDLE."""
+    port, sniff = bus
+    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        driver.command("tension", 30.0)
+        driver.dwell(0.2)
+        request = DB.get_message_by_name("Axis0_Set_Axis_State")
+        sniff.bus.send(can.Message(arbitration_id=2 << 5 | request.frame_id, is_extended_id=False,
+                                   data=request.encode({"Axis_Requested_State": 1})))
+        with pytest.raises(BoardFault) as err:
+            driver.dwell(1.0)
+        assert err.value.muscle == "m1"
+        assert "the board reports Axis_State IDLE (1), Axis_Error 0x00000000" in str(err.value)
+        assert err.value.end_state.startswith("relaxed: every board at its holding floor (m1 "
+                                              "re-armed, confirmed by their own state report)")
+    frames = sniff.drain()
+    idle = _index(frames, 2, "Heartbeat", lambda v: v["Axis_State"] == AxisState.IDLE
+                  and v["Procedure_Result"] == ProcedureResult.CANCELLED)
+    _index(frames, 2, "Heartbeat", lambda v: v["Axis_State"] == AxisState.CLOSED_LOOP_CONTROL,
+           start=idle)
