@@ -91,6 +91,9 @@ class MockArm:
         from pimbs_calibration.description import load_robot
 
         self.robot = load_robot(robot) if isinstance(robot, str | Path) else robot
+        from pimbs_hw.protocol.profiles import protocols_for
+
+        protocols_for(self.robot)  # boards whose CAN ids collide cannot share a bus
         self.muscles = tuple(m.name for m in self.robot.muscles)
         self.faults: tuple[FaultSpec, ...] = parse_faults(faults, self.muscles)
         self.effects = EffectStack(effect)
