@@ -258,8 +258,15 @@ class ArmDriver:
                               for i in missing)
             hint = ("is the arm powered and the port right? for the simulated arm use "
                     "--port virtual" if len(missing) == len(self._rx) else "check that board")
-            stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from {names}; "
-                               f"{hint}", **self._where(missing[0]))
+            unarmed = [i for i in missing if self._rx[i].seen()
+                       and self._proto[i].has_state]  # type: ignore[union-attr]
+            if unarmed == missing:  # they answer, but their own state machine refuses
+                stop = BoardFault(f"not armed within {timeout_s:.1f} s: {names}; clear the "
+                                  "error on the board (or power-cycle it) and check its "
+                                  "calibration", **self._where(missing[0]))
+            else:
+                stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from "
+                                   f"{names}; {hint}", **self._where(missing[0]))
             self._trip(stop)
         self.relax()
         # wait for the answers to that relax: faults latched in an earlier session (a host
@@ -494,7 +501,8 @@ class ArmDriver:
         by its own report, and say truthfully which boards stayed disarmed."""
         down = [i for i, p in enumerate(self._proto)
                 if p.has_state and not p.armed(self._rx[i].state)]  # type: ignore[union-attr]
-        idle = self._rearm(down) if down else []
+        # as long as the host waits for any late frame: 1 s on a bus, more in simulation
+        idle = self._rearm(down, max(1.0, 2 * self.limits.silent_after_s)) if down else []
         rearmed = [self.muscles[i] for i in down if i not in idle]
         text = "relaxed: every board at its holding floor"
         if idle:

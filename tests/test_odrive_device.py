@@ -118,7 +118,8 @@ def test_collection_frames_are_odrives_and_commands_wait_for_closed_loop(bus):
         after = [p for k, p in pos if k < n_before_pull][-1]
         assert after > before
         torque = [v for n, name, v in frames if n == node and name == "Get_Torques"]
-        assert max(t["Torque_Target"] for t in torque) == pytest.approx(0.36, rel=1e-6)
+        # in torque control the setpoint is the command (in position control, the load)
+        assert any(t["Torque_Target"] == pytest.approx(0.36, rel=1e-6) for t in torque)
         assert max(t["Torque_Estimate"] for t in torque) > 0.2
         assert any(v["Vel_Estimate"] > 0 for n, name, v in frames
                    if n == node and name == "Get_Encoder_Estimates")
@@ -339,3 +340,18 @@ def test_every_frame_of_a_pimbs_collect_run_decodes_with_odrives_dbc(bus, tmp_pa
         assert inputs and min(inputs) > confirmed
         assert all(v["Axis_Error"] == 0 for n, name, v in frames
                    if n == node and name == "Heartbeat")
+
+
+def test_an_axis_that_will_not_arm_is_refused_before_any_command(bus):
+    port, sniff = bus
+    with pytest.raises(BoardFault) as err:
+        with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=LIMITS, connect_timeout_s=1.0,
+                      faults=["drv-fault:m1"]):
+            pass
+    assert err.value.detail.startswith("not armed within 1.0 s: m1 (board 2, profile "
+                                     "odrive-cansimple, reports Axis_State IDLE (1), "
+                                     "Axis_Error 0x00000020 DRV_FAULT)")
+    assert err.value.end_state.startswith("m1 (board 2): motor off, its wire may be slack")
+    frames = sniff.drain()
+    assert not [f for f in frames if f[0] == 2 and f[1] in ("Set_Input_Torque", "Set_Input_Pos")
+                and f[2].get("Input_Torque", 0) > 0.07]  # m1 never got more than its relax
