@@ -26,6 +26,7 @@ from pimbs_cli.main import main  # noqa: E402
 from pimbs_hw import open_arm  # noqa: E402
 from pimbs_hw.mock.boards import SiReading  # noqa: E402
 from pimbs_hw.mock.odrive import ODriveAxis  # noqa: E402
+from pimbs_hw.protocol.codec import Fault  # noqa: E402
 from pimbs_hw.safety import BoardFault, WatchdogExpired  # noqa: E402
 from tests.test_driver_mock import wait_until  # noqa: E402
 from tests.test_profiles import LIMITS, ODRIVE_ROBOT  # noqa: E402
@@ -355,3 +356,26 @@ def test_an_axis_that_will_not_arm_is_refused_before_any_command(bus):
     frames = sniff.drain()
     assert not [f for f in frames if f[0] == 2 and f[1] in ("Set_Input_Torque", "Set_Input_Pos")
                 and f[2].get("Input_Torque", 0) > 0.07]  # m1 never got more than its relax
+
+
+@pytest.mark.parametrize("error, faults", [
+    (0, Fault(0)), (0x01000000, Fault.WATCHDOG), (0x00000020, Fault.MOTOR),
+    (0x00002000, Fault.OVERHEAT), (0x80000000, Fault.MOTOR),
+    (0x01000020, Fault.WATCHDOG | Fault.MOTOR)])
+def test_host_reads_heartbeats_as_odrives_enums_define_them(error, faults):
+    from pimbs_calibration.description import load_robot
+    from pimbs_hw.protocol.profiles import protocols_for
+
+    (proto,) = [p for p in protocols_for(load_robot(ODRIVE_ROBOT)) if p.indices]
+    beat = DB.get_message_by_name("Axis0_Heartbeat")
+    data = beat.encode({"Axis_Error": error, "Axis_State": int(AxisState.IDLE),
+                        "Procedure_Result": int(ProcedureResult.DISARMED),
+                        "Trajectory_Done_Flag": 0})
+    (update,) = proto.decode(3 << 5 | beat.frame_id, data)
+    assert (update.muscle, update.state, update.error_code, update.faults) == (2, 1, error, faults)
+    assert not proto.armed(update.state) and proto.armed(int(AxisState.CLOSED_LOOP_CONTROL))
+    text = proto.state_text(update.state, update.error_code)
+    assert text.startswith(f"Axis_State IDLE (1), Axis_Error 0x{error:08X}")
+    for flag in ODriveError:
+        if flag and error & flag and flag.name in {n for _, n, _ in proto.profile.faults[0].bits}:
+            assert flag.name in text  # named as ODrive's enum names it

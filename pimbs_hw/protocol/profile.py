@@ -549,12 +549,15 @@ class ProfileProtocol(BoardProtocol):
                 state = int(v)
                 continue
             if r.kind is not None:
-                if v:
+                if v:  # each named bit raises its own fault; any other bit the reading's
                     code = int(v)
-                    named = [kind for bit, _, kind in r.bits if code & bit]
-                    faults |= named[0] if named else r.kind
-                    for kind in named[1:]:
-                        faults |= kind
+                    known = 0
+                    for bit, _, kind in r.bits:
+                        known |= bit
+                        if code & bit:
+                            faults |= kind
+                    if code & ~known:
+                        faults |= r.kind
                 if r.bits:
                     error = int(v)
                 continue
