@@ -23,6 +23,7 @@ Muscle file layout (values under ``defaults`` apply to every muscle that does no
     muscles:
       - name: m0
         board_id: 1
+        direction: 1                      # optional: -1 if the wire is wound the other way
         path:                             # >= 2 via points, fixed on links
           - {link: base_link, point: [0.0, 0.0, 0.05]}
           - {link: upper_arm, point: [0.0, 0.0, -0.1]}
@@ -122,6 +123,9 @@ class MuscleSpec:
     # board protocol: None = PIMBS v1; a shipped profile name (odrive-cansimple) or the
     # absolute path of a lab's ``*.profile.yaml`` (a .dbc + mapping; see pimbs_hw)
     protocol: str | None = None
+    # winding direction (docs/boards.md): +1 when a positive motor turn reels the wire in
+    # (tension rises, length shortens), -1 when the wire is wound the other way round
+    direction: int = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -399,7 +403,13 @@ def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Pat
             if not Path(protocol).is_file():
                 raise DescriptionError(path, f"{field}.protocol", f"no file {protocol}",
                                        "Give the profile's path relative to this file")
-    return MuscleSpec(name=name, board_id=board_id, path=via, protocol=protocol, **values)
+    direction = entry.get("direction", 1)
+    if isinstance(direction, bool) or direction not in (1, -1):
+        raise DescriptionError(path, f"{field}.direction", f"{direction!r} is not 1 or -1",
+                               "Write 1 when a positive motor turn reels the wire in, -1 when "
+                               "it pays it out (`pimbs check-wiring` tells which)")
+    return MuscleSpec(name=name, board_id=board_id, path=via, protocol=protocol,
+                      direction=int(direction), **values)
 
 
 def _parse_path(entries: list, model, joints: tuple[str, ...], path: Path, field: str

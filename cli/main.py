@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "diagnose": "pimbs_cli.diagnose",
     "scan": "pimbs_cli.scan",
     "zero": "pimbs_cli.zero",
+    "check-wiring": "pimbs_cli.check_wiring",
     "robot": "pimbs_cli.robot",
     "import": "pimbs_cli.import_log",
     "estimate": "pimbs_cli.estimate",

@@ -33,6 +33,10 @@ def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
 
     description = load_robot(robot or "two-link-4-muscle") if robot or is_simulated(
         port) else None
+    if description is not None:
+        from pimbs_hw.protocol.profiles import protocols_for
+
+        protocols_for(description)  # refuses boards whose CAN ids collide, in one line
     with contextlib.ExitStack() as stack:
         kwargs = {}
         if is_simulated(port):

@@ -35,6 +35,7 @@ from pimbs_hw.protocol.board import (
 )
 from pimbs_hw.protocol.codec import Fault
 from pimbs_hw.safety import (
+    BoardFault,
     BoardSilent,
     CorruptFrames,
     FramesDropped,
@@ -85,6 +86,8 @@ class _Rx:
         self.saturated = False
         self.counter: int | None = None
         self.version: str | None = None
+        self.state: int | None = None  # the board's own state, as last reported
+        self.error_code: int | None = None  # its raw error word, as last reported
         self.period_s, self.counted = period_s, counted
         self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
         self.lost = 0  # sum of the gaps in ``gaps``
@@ -115,6 +118,10 @@ class _Rx:
             self.faults = u.faults
         if u.version is not None:
             self.version = u.version
+        if u.state is not None:
+            self.state = u.state
+        if u.error_code is not None:
+            self.error_code = u.error_code
 
     def seen(self, fields: Sequence[str] = _NEEDED) -> bool:
         return all(np.isfinite(self.times[f]) for f in fields)
@@ -217,9 +224,16 @@ class ArmDriver:
                            lim.board_thermal_limit_c)
 
     def _ready(self, i: int) -> bool:
+        """Readings seen, configured, and (boards with a state machine) armed as reported."""
         rx, proto = self._rx[i], self._proto[i]
-        return rx.seen() and (not proto.capabilities.configure  # type: ignore[union-attr]
-                              or proto.configured(rx.faults))  # type: ignore[union-attr]
+        return rx.seen() and proto.armed(rx.state) and (  # type: ignore[union-attr]
+            not proto.capabilities.configure  # type: ignore[union-attr]
+            or proto.configured(rx.faults))  # type: ignore[union-attr]
+
+    def _reported(self, i: int) -> str:
+        """Muscle ``i``'s board state in the device's own words ('' if it has none)."""
+        rx = self._rx[i]
+        return self._proto[i].state_text(rx.state, rx.error_code)  # type: ignore[union-attr]
 
     def _configure(self, timeout_s: float) -> None:
         """Send limits, wait for every board to answer configured, then relax (safe start)."""
@@ -238,12 +252,21 @@ class ArmDriver:
         if missing:
             names = ", ".join(f"{self.muscles[i]} (board {self.board_ids[i]}"
                               + ("" if self._proto[i].name == "pimbs-v1"  # type: ignore
-                                 else f", {self._proto[i].describe()}") + ")"  # type: ignore
+                                 else f", {self._proto[i].describe()}")  # type: ignore
+                              + (f", reports {self._reported(i)}" if self._rx[i].seen()
+                                 and self._reported(i) else "") + ")"
                               for i in missing)
             hint = ("is the arm powered and the port right? for the simulated arm use "
                     "--port virtual" if len(missing) == len(self._rx) else "check that board")
-            stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from {names}; "
-                               f"{hint}", **self._where(missing[0]))
+            unarmed = [i for i in missing if self._rx[i].seen()
+                       and self._proto[i].has_state]  # type: ignore[union-attr]
+            if unarmed == missing:  # they answer, but their own state machine refuses
+                stop = BoardFault(f"not armed within {timeout_s:.1f} s: {names}; clear the "
+                                  "error on the board (or power-cycle it) and check its "
+                                  "calibration", **self._where(missing[0]))
+            else:
+                stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from "
+                                   f"{names}; {hint}", **self._where(missing[0]))
             self._trip(stop)
         self.relax()
         # wait for the answers to that relax: faults latched in an earlier session (a host
@@ -305,7 +328,13 @@ class ArmDriver:
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
                                          f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
                                          **where))
-            if (found := fault_stop(rx.faults)) is not None:
+            found = fault_stop(rx.faults)
+            proto = self._proto[i]
+            if proto.has_state and (found or not proto.armed(rx.state)):  # type: ignore
+                # the device's own state machine: say what it reported, never a guess
+                self._trip((found[0] if found else BoardFault)(
+                    f"the board reports {self._reported(i)}", **where))
+            if found is not None:
                 self._trip(found[0](found[1], **where))
             if rx.saturated:
                 self._trip(LoadcellSaturated("loadcell reading at its rail: the tension is "
@@ -459,11 +488,58 @@ class ArmDriver:
         """
         if self.tripped is None:
             self.tripped = stop
-            reached = self._relax_quietly()
-            stop.end_state = ("relaxed: every board at its holding floor" if reached else
-                              "; ".join(p.unreachable(self.limits.watchdog_s)
-                                        for p in self.protocols if p.indices))
+            if not self._relax_quietly():
+                stop.end_state = "; ".join(p.unreachable(self.limits.watchdog_s)
+                                           for p in self.protocols if p.indices)
+            else:
+                stop.end_state = self._rearm_report()
         raise stop
+
+    def _rearm_report(self) -> str:
+        """After the relax: re-arm every board whose state machine left its armed state
+        (ODrive: an axis in IDLE has its motor off, and a relax does not reach it), confirm
+        by its own report, and say truthfully which boards stayed disarmed."""
+        down = [i for i, p in enumerate(self._proto)
+                if p.has_state and not p.armed(self._rx[i].state)]  # type: ignore[union-attr]
+        # as long as the host waits for any late frame: 1 s on a bus, more in simulation
+        idle = self._rearm(down, max(1.0, 2 * self.limits.silent_after_s)) if down else []
+        rearmed = [self.muscles[i] for i in down if i not in idle]
+        text = "relaxed: every board at its holding floor"
+        if idle:
+            text = ("; ".join(f"{self.muscles[i]} (board {self.board_ids[i]}): motor off, its "
+                              f"wire may be slack; after a re-arm the board still reports "
+                              f"{self._reported(i)}" for i in idle)
+                    + ("; the others relaxed at their holding floor"
+                       if len(idle) < len(self.muscles) else ""))
+        elif rearmed:
+            text += f" ({', '.join(rearmed)} re-armed, confirmed by their own state report)"
+        idlers = [p.unreachable(self.limits.watchdog_s) for p in self.protocols
+                  if p.has_state and p.indices and p.capabilities.board_watchdog]
+        if idlers:  # their watchdog does not wait for the host to come back
+            text += "; once the host stops sending: " + "; ".join(idlers)
+        return text
+
+    def _rearm(self, down: list[int], timeout_s: float = 1.0) -> list[int]:
+        """Send ``down``'s arming frames and a relax; the ones still not armed after
+        ``timeout_s`` (a few state reports) as their boards report them."""
+        send = getattr(self.transport, "send_despite_fault", self.transport.send)
+        arm = [f for i in down
+               for f in self._proto[i].setup(i, self._board_limits(i))]  # type: ignore
+        relax = [f for i, p in enumerate(self._proto)
+                 for f in p.command(i, "relax")]  # type: ignore[union-attr]
+        deadline = time.monotonic() + timeout_s
+        try:
+            for frame in arm + relax:
+                send(*frame)
+            while time.monotonic() < deadline:
+                self._pump(0.05)
+                if all(self._proto[i].armed(self._rx[i].state) for i in down):  # type: ignore
+                    break
+                for frame in relax:  # keep every board fed (and relaxed) while waiting
+                    send(*frame)
+        except Exception:  # noqa: BLE001 - the link failed now: report the states as seen
+            pass
+        return [i for i in down if not self._proto[i].armed(self._rx[i].state)]  # type: ignore
 
     def _relax_quietly(self) -> bool:
         """Send every board its relax; False when the link refused (bus-off, unplugged)."""

@@ -71,10 +71,15 @@ def scan_protocols(robot=None) -> list[tuple[BoardProtocol, dict[int, str]]]:
     out: list[tuple[BoardProtocol, dict[int, str]]] = [
         (PimbsV1(range(MAX_BOARDS), boards, n_joints=MAX_BOARDS), names.get("pimbs-v1", {}))]
     for name in [*profiles, *(p for p in SHIPPED if p not in profiles)]:
-        try:
-            profile = load_profile(profile_path(name))
-            out.append((profile.protocol(range(MAX_BOARDS), boards), names.get(name, {})))
-        except ProfileError:  # ids collide across 32 boards: decode the robot's boards only
+        profile = load_profile(profile_path(name))
+        for count in (64, MAX_BOARDS):  # ODrive node ids go to 63; other boards to 31
+            try:
+                out.append((profile.protocol(range(count), [_any_board(b) for b in range(
+                    count)]), names.get(name, {})))
+                break
+            except ProfileError:
+                continue
+        else:  # ids collide across 32 boards: decode the robot's boards only
             ids = sorted(names.get(name, {}))
             if ids:
                 out.append((load_profile(profile_path(name)).protocol(

@@ -56,6 +56,8 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
                 f"the port is right, check that --robot {robot.name} ({robot.muscle_path}) "
                 f"describes the boards on this bus (board ids "
                 f"{', '.join(str(m.board_id) for m in robot.muscles)})"
+                # what boards that answered said about themselves (silent ones say nothing)
+                + ("" if isinstance(stop, BoardSilent) else f". Arm left: {stop.end_state}")
             ) from stop
         yield DriverLink(driver, mock)
 

@@ -27,6 +27,7 @@ from pimbs_hw.errors import HardwareError
 from pimbs_hw.mock.boards import ProfileBoard, SiReading, V1Board
 from pimbs_hw.mock.effects import EffectStack
 from pimbs_hw.mock.faults import FaultSpec, parse_faults
+from pimbs_hw.mock.odrive import ODriveAxis
 from pimbs_hw.mock.plant import Plant
 from pimbs_hw.protocol.codec import MAX_BOARDS, JointStatus, encode, signal_range
 from pimbs_hw.transport import CanTransport, PtyMaster, SerialTransport, Transport
@@ -85,11 +86,14 @@ class MockArm:
     def __init__(self, robot, link: str = "virtual", *, model=None, effect=None,
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
-                 encoder_offset_m=None) -> None:
+                 encoder_offset_m=None, winding=None) -> None:
         from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
         self.robot = load_robot(robot) if isinstance(robot, str | Path) else robot
+        from pimbs_hw.protocol.profiles import protocols_for
+
+        protocols_for(self.robot)  # boards whose CAN ids collide cannot share a bus
         self.muscles = tuple(m.name for m in self.robot.muscles)
         self.faults: tuple[FaultSpec, ...] = parse_faults(faults, self.muscles)
         self.effects = EffectStack(effect)
@@ -106,10 +110,14 @@ class MockArm:
         self.encoder_offset_m = (np.zeros(m) if encoder_offset_m is None
                                  else np.broadcast_to(np.asarray(encoder_offset_m, float),
                                                       (m,)).copy())
-        self.boards = [self._board(spec, now) for spec in self.robot.muscles]
-        ids = {spec.board_id for spec in self.robot.muscles}
-        if len(ids) != m or not all(0 <= b < MAX_BOARDS for b in ids):
-            raise ValueError(f"{self.robot.name}: board ids must be unique in 0..{MAX_BOARDS - 1}")
+        # how each wire is truly wound on its motor (+1: a positive turn reels it in); the
+        # description's ``direction`` says what the host believes; a test makes them differ
+        self.winding = ([getattr(s, "direction", 1) for s in self.robot.muscles]
+                        if winding is None else [int(w) for w in winding])
+        self.boards = [self._board(spec, now, w)
+                       for spec, w in zip(self.robot.muscles, self.winding, strict=True)]
+        if len({spec.board_id for spec in self.robot.muscles}) != m:
+            raise ValueError(f"{self.robot.name}: board ids must be unique")
         self._by_frame = {fid: i for i, b in enumerate(self.boards) for fid in b.frame_ids}
         self._home = False
         self._sent: dict[int, int] = {}  # frames sent per id (drop-frames keeps every 4th)
@@ -131,15 +139,25 @@ class MockArm:
         self._next_joints = self._last_tick = now
         self._readings = self._read_all(self.plant.state)
 
-    def _board(self, spec, now: float):
+    def _board(self, spec, now: float, winding: int):
         from pimbs_hw.protocol.profiles import muscle_protocol, profile_path
 
         name = muscle_protocol(spec)
         if name == "pimbs-v1":
-            return V1Board(spec, now, self.status_period_s)
+            if not 0 <= spec.board_id < MAX_BOARDS:
+                raise ValueError(f"muscle {spec.name}: board_id {spec.board_id} is outside "
+                                 f"0..{MAX_BOARDS - 1}")
+            return V1Board(spec, now, self.status_period_s, winding)
         from pimbs_hw.protocol.profile import load_profile
 
-        return ProfileBoard(spec, load_profile(profile_path(name)), now)
+        profile = load_profile(profile_path(name))
+        if profile.name == "odrive-cansimple":  # the device itself, from ODrive's documentation
+            tension = profile.status["tension"]
+            return ODriveAxis(spec, now, turns_per_m=profile.status["position"].per_si,
+                              nm_per_n=tension.per_si, winding=winding,
+                              watchdog_s=profile.watchdog[0] if profile.watchdog else None,
+                              torque_limit_nm=tension.rail[1] if tension.rail else 5.0)
+        return ProfileBoard(spec, profile, now, winding)
 
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
@@ -292,6 +310,11 @@ class MockArm:
                                                          self._cycles):
                 self._active.add(spec)
                 log.info("mock arm: fault %s active", spec)
+                if spec.kind == "drv-fault":
+                    with self._lock:
+                        for board in self.boards:
+                            if spec.hits(board.spec.name):
+                                board.inject(spec.kind)
                 if spec.kind == "bus-off" and not self._bus_off:
                     self.transport.send_error(CAN_ERR_BUSOFF)
                     self._bus_off = True

@@ -48,8 +48,9 @@ class V1Board:
 
     checksum = True
 
-    def __init__(self, spec, now: float, status_period_s: float) -> None:
+    def __init__(self, spec, now: float, status_period_s: float, winding: int = 1) -> None:
         self.spec, self.sim = spec, SimBoard(spec, now)
+        self.winding = 1 if winding >= 0 else -1  # -1: the encoder counts down as wire pays out
         self.period = status_period_s
         self.next_status = now
         self.frame_ids = {frame_id(cls, spec.board_id) for cls in MESSAGE_TYPES
@@ -59,7 +60,8 @@ class V1Board:
         s = self.spec
         raw = RAW_MAX if r.saturated else round(s.loadcell_offset_counts
                                                + r.tension_n / s.loadcell_n_per_count)
-        return Reading(round(r.position_m * s.counts_per_m), int(np.clip(raw, RAW_MIN, RAW_MAX)),
+        return Reading(round(self.winding * r.position_m * s.counts_per_m),
+                       int(np.clip(raw, RAW_MIN, RAW_MAX)),
                        float(np.clip(r.temperature_c, TEMP_MIN, TEMP_MAX)))
 
     @property
@@ -84,8 +86,14 @@ class V1Board:
         self.sim.supervise(now, self._raw(reading))
 
     def actuation(self) -> tuple[str, float]:
-        return self.sim.actuation()
+        mode, value = self.sim.actuation()
+        return mode, value * self.winding if mode == "length" else value
 
+    def inject(self, kind: str) -> None:
+        """Fault injection: ``drv-fault`` = the motor driver faults (latched, relaxed)."""
+        if kind == "drv-fault":
+            self.sim.latched |= Fault.MOTOR
+            self.sim.mode = "relax"
     def frames(self, now: float, reading: SiReading, reply: bool = False) -> list[RawFrame]:
         """Frames due now (periodic), or the reply to a command."""
         if not reply and now < self.next_status:
@@ -99,8 +107,9 @@ class ProfileBoard:
 
     checksum = False
 
-    def __init__(self, spec, profile: Profile, now: float) -> None:
+    def __init__(self, spec, profile: Profile, now: float, winding: int = 1) -> None:
         self.spec, self.profile = spec, profile
+        self.winding = 1 if winding >= 0 else -1  # -1: the encoder counts down as wire pays out
         node_id = {name: node for name, node in profile.nodes.items()}
         self.mode, self.target = "hold", math.nan
         self.relax_n = spec.f_floor
@@ -151,7 +160,7 @@ class ProfileBoard:
             return False
         value = float(values[frame.value_signal]) / frame.per_si
         if kind == "length":
-            self.mode, self.target = "position", value
+            self.mode, self.target = "position", value * self.winding
         elif kind == "tension":
             relax = abs(value - self.relax_n) < RELAX_MATCH_N
             self.mode, self.target = ("relax" if relax else "tension"), value
@@ -172,6 +181,12 @@ class ProfileBoard:
             return "length", self.target
         return "tension", self.target
 
+    def inject(self, kind: str) -> None:
+        """Fault injection: ``drv-fault`` = the motor driver faults (reported, relaxed)."""
+        if kind == "drv-fault":
+            self.faults |= Fault.MOTOR
+            self.mode, self.target = "relax", self.relax_n
+
     def _signals(self, msg, readings, reading: SiReading) -> dict[str, float]:
         values = {s.name: 0.0 for s in msg.signals}
         status = self.profile.status
@@ -185,7 +200,7 @@ class ProfileBoard:
                 self.counter = (self.counter + 1) & 0xFF
                 values[r.signal] = float(self.counter)
                 continue
-            si = {"position": reading.position_m, "tension": reading.tension_n,
+            si = {"position": self.winding * reading.position_m, "tension": reading.tension_n,
                   "temperature": reading.temperature_c}[quantity]
             value = si * r.per_si
             if r.rail is not None:

@@ -81,6 +81,8 @@ class Update:
     version: str | None = None
     joint: bool = False
     angle_rad: float | None = None
+    state: int | None = None  # the board's own state (boards with a state machine)
+    error_code: int | None = None  # the board's raw error word, as it reported it
 
 
 class CorruptFrame(ValueError):
@@ -129,6 +131,26 @@ class BoardProtocol(ABC):
 
     def describe(self) -> str:
         return self.name
+
+    def ids_used(self, i: int) -> set[int]:
+        """Every CAN id muscle ``i``'s board sends or listens to (collisions are refused)."""
+        return set()
+
+    def shared_ids(self) -> dict[str, set[int]]:
+        """Ids this protocol uses that belong to no muscle (e.g. joint encoders), by owner."""
+        return {}
+
+    # boards with a state machine (ODrive: IDLE / CLOSED_LOOP_CONTROL) must report their
+    # armed state before the host commands them; others are always ready
+    has_state = False
+
+    def armed(self, state: int | None) -> bool:
+        """Whether a board reporting ``state`` takes commands."""
+        return True
+
+    def state_text(self, state: int | None, error: int | None) -> str:
+        """The state and error as the board reported them, by the device's own names."""
+        return ""
 
     def unreachable(self, watchdog_s: float) -> str:
         """What these boards do when the host cannot reach them any more (the end state)."""

@@ -21,6 +21,7 @@ from pimbs_hw.protocol.board import (
     Update,
 )
 from pimbs_hw.protocol.codec import (
+    MESSAGE_TYPES,
     CodecError,
     JointStatus,
     Message,
@@ -58,6 +59,8 @@ class PimbsV1(BoardProtocol):
         self._by_board = {s.board_id: i for i, s in self.specs.items()}
         self.n_joints = n_joints
         self._counter = 0
+        # direction -1: the encoder counts down as the wire pays out (see docs/boards.md)
+        self.sign = {i: float(getattr(s, "direction", 1)) for i, s in self.specs.items()}
 
     # -- conversions -----------------------------------------------------------------------
     def raw(self, i: int, tension_n: float) -> int:
@@ -67,8 +70,17 @@ class PimbsV1(BoardProtocol):
         return int(np.clip(raw, RAW_RANGE[0] + 1, RAW_RANGE[1] - 1))
 
     def position_range_m(self, i: int) -> tuple[float, float]:
-        return POSITION_RANGE[0] / self.specs[i].counts_per_m, \
-            POSITION_RANGE[1] / self.specs[i].counts_per_m
+        ends = sorted(self.sign[i] * v / self.specs[i].counts_per_m for v in POSITION_RANGE)
+        return ends[0], ends[1]
+
+    def ids_used(self, i: int) -> set[int]:
+        board = self.specs[i].board_id
+        return {frame_id(cls, board) for cls in MESSAGE_TYPES if cls is not JointStatus}
+
+    def shared_ids(self) -> dict[str, set[int]]:
+        if not self.n_joints:
+            return {}
+        return {"joint encoders": {frame_id(JointStatus, j) for j in range(self.n_joints)}}
 
     def _frame(self, msg: Message) -> RawFrame:
         self._counter = (self._counter + 1) & 0xF
@@ -90,7 +102,7 @@ class PimbsV1(BoardProtocol):
             return [self._frame(Stop(board, 0))]
         if kind == "tension":
             return [self._frame(TensionCommand(board, 0, self.raw(i, value)))]
-        counts = np.rint(value * spec.counts_per_m)
+        counts = np.rint(self.sign[i] * value * spec.counts_per_m)
         if not POSITION_RANGE[0] <= counts <= POSITION_RANGE[1]:
             raise ValueError(f"muscle {spec.name}: length {value:.4f} m is outside the encoder "
                              "range of the protocol")
@@ -109,7 +121,7 @@ class PimbsV1(BoardProtocol):
             if i is None:
                 return []
             s = self.specs[i]
-            return [Update(i, position_m=msg.position_counts / s.counts_per_m,
+            return [Update(i, position_m=self.sign[i] * msg.position_counts / s.counts_per_m,
                            tension_n=(msg.loadcell_raw - s.loadcell_offset_counts)
                            * s.loadcell_n_per_count,
                            temperature_c=msg.temperature_c, faults=msg.faults,

@@ -18,7 +18,11 @@ mistake is a ``ProfileError`` naming the file, the line and the signal.
       counter: {node: motor, message: MOTOR_STATUS, signal: alive}           # optional
       version: {node: motor, message: VERSION, signals: [major, minor]}      # optional
       faults:                            # optional; kind: motor, encoder, overheat, ...
-        - {node: motor, message: MOTOR_STATUS, signal: error, kind: motor}
+        - {node: motor, message: MOTOR_STATUS, signal: error, kind: motor,
+           bits: {0x100: {name: OVERTEMP, kind: overheat}}}   # optional: named error bits
+      state: {node: motor, message: HEARTBEAT, signal: state,  # optional: a board that must
+              armed: 8, names: {1: IDLE, 8: CLOSED_LOOP}}       # be armed (setup frames) and
+                                         # report `armed` before the host commands it
     commands:                            # frames per command; the string `value` is the
       length:                            # command in SI times per_si
         - {node: motor, message: MOTOR_CMD, signals: {mode: 1, target: value}, per_si: 1000}
@@ -29,6 +33,9 @@ mistake is a ``ProfileError`` naming the file, the line and the signal.
     setup: [...]                         # optional frames sent at start-up (e.g. enable)
     watchdog: {timeout_s: 0.5, action: relax}   # optional: what the board does by itself
                                          # when commands stop: relax | idle (motor off)
+    winding: [position]                  # quantities a muscle's `direction: -1` negates
+                                         # (default [position]; [position, tension] where
+                                         # the tension is the motor's own torque)
 
 Untrusted files never run code: the mapping is YAML data, read with the safe loader, and
 placeholders are the single word ``value``.
@@ -106,6 +113,7 @@ class Reading:
     per_si: float = 1.0
     rail: tuple[float, float] | None = None
     kind: Fault | None = None  # fault readings: the fault a nonzero value raises
+    bits: tuple[tuple[int, str, Fault], ...] = ()  # fault readings: named bits, their fault
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,7 @@ class CommandFrame:
     constants: dict[str, float]
     value_signal: str | None
     per_si: float
+    kind: str | None = None  # the quantity the value is: position | tension
 
 
 @dataclass
@@ -134,6 +143,10 @@ class Profile:
     version: tuple[str, str, tuple[str, ...]] | None = None  # node, message, signals
     watchdog: tuple[float, str] | None = None  # (timeout s, "relax" | "idle")
     periods: dict[str, float] = field(default_factory=dict)  # message -> cycle time, s
+    state: Reading | None = None  # the board's state machine (armed state: ``armed``)
+    armed: int | None = None
+    state_names: dict[int, str] = field(default_factory=dict)
+    winding: tuple[str, ...] = ("position",)
 
     @property
     def capabilities(self) -> Capabilities:
@@ -149,7 +162,8 @@ class Profile:
     def status_messages(self) -> dict[tuple[str, str], list[Reading]]:
         """(node, message) -> readings it carries (what a board sends)."""
         out: dict[tuple[str, str], list[Reading]] = {}
-        for r in [*self.status.values(), *self.faults]:
+        for r in [*self.status.values(), *self.faults,
+                  *([self.state] if self.state is not None else [])]:
             out.setdefault((r.node, r.message), []).append(r)
         if self.version is not None:
             out.setdefault(self.version[:2], [])
@@ -273,7 +287,8 @@ def load_profile(path: str | Path) -> Profile:
             raise check.fail(entry, f"{key}.kind", f"unknown fault kind {kind!r}; use one of "
                              f"{', '.join(FAULT_KINDS)}")
         faults.append(Reading(reading.node, reading.message, reading.signal,
-                              kind=FAULT_KINDS[kind]))
+                              kind=FAULT_KINDS[kind],
+                              bits=_bits(check, entry, key, FAULT_KINDS[kind])))
     version = None
     if (entry := status_raw.get("version")) is not None:
         node = check.node(entry, "status.version", nodes)
@@ -294,7 +309,9 @@ def load_profile(path: str | Path) -> Profile:
                 raise check.fail(commands_raw, f"commands.{kind}", "required: a list of frames")
             continue
         commands[kind] = _frames(check, frames, commands_raw, f"commands.{kind}", nodes,
-                                 needs_value=kind in ("length", "tension"))
+                                 needs_value=kind in ("length", "tension"),
+                                 quantity="tension" if kind in ("tension", "relax")
+                                 else "position")
     setup = _frames(check, raw.get("setup") or [], raw, "setup", nodes,
                     needs_value=False)
     name = raw.get("profile") or path.name.removesuffix(".profile.yaml")
@@ -306,8 +323,50 @@ def load_profile(path: str | Path) -> Profile:
                              "say what the board does when commands stop: relax or idle")
         watchdog = (check.number(entry, "watchdog", "timeout_s", positive=True),
                     entry["action"])
+    state, armed, names = _state(check, status_raw, nodes)
+    winding = raw.get("winding", ["position"])
+    if not (isinstance(winding, list) and set(winding) <= {"position", "tension"}):
+        raise check.fail(raw, "winding", "list the quantities a muscle's direction negates: "
+                         "[position] or [position, tension]")
     return Profile(str(name), path, db, nodes, status, faults, commands, setup, version,
-                   watchdog, periods)
+                   watchdog, periods, state, armed, names, tuple(winding))
+
+
+def _bits(check: _Checker, entry: _Map, key: str, default: Fault
+          ) -> tuple[tuple[int, str, Fault], ...]:
+    raw = entry.get("bits")
+    if raw is None:
+        return ()
+    if not isinstance(raw, _Map):
+        raise check.fail(entry, f"{key}.bits", "expected {bit value: {name: NAME, kind: K}}")
+    out = []
+    for bit, spec in raw.items():
+        kind = spec.get("kind") if isinstance(spec, _Map) else None
+        if not (isinstance(bit, int) and isinstance(spec, _Map) and isinstance(
+                spec.get("name"), str) and (kind is None or kind in FAULT_KINDS)):
+            raise check.fail(raw, f"{key}.bits", f"{bit!r}: expected {{name: NAME, kind: one "
+                             f"of {', '.join(FAULT_KINDS)}}}")
+        out.append((bit, spec["name"], FAULT_KINDS[kind] if kind else default))
+    return tuple(out)
+
+
+def _state(check: _Checker, raw: _Map, nodes: dict[str, Node]
+           ) -> tuple[Reading | None, int | None, dict[int, str]]:
+    entry = raw.get("state")
+    if entry is None:
+        return None, None, {}
+    if not isinstance(entry, _Map):
+        raise check.fail(raw, "status.state", "expected {node, message, signal, armed, names}")
+    node = check.node(entry, "status.state", nodes)
+    msg = check.message(entry, "status.state")
+    signal = check.signal(entry, "status.state", entry.get("signal"), msg)
+    armed = entry.get("armed")
+    names = entry.get("names") or {}
+    if not isinstance(armed, int) or not isinstance(names, dict) or not all(
+            isinstance(k, int) and isinstance(v, str) for k, v in names.items()):
+        raise check.fail(entry, "status.state.armed", "give the state value the board must report "
+                         "before it is commanded (armed: N) and names: {N: NAME}")
+    return Reading(node, msg.name, signal), armed, dict(names)
 
 
 def _reading(check: _Checker, entry: Any, parent: _Map, key: str, nodes: dict[str, Node]
@@ -332,7 +391,8 @@ def _reading(check: _Checker, entry: Any, parent: _Map, key: str, nodes: dict[st
 
 
 def _frames(check: _Checker, entries: Any, parent: _Map, key: str,
-            nodes: dict[str, Node], *, needs_value: bool) -> list[CommandFrame]:
+            nodes: dict[str, Node], *, needs_value: bool,
+            quantity: str | None = None) -> list[CommandFrame]:
     if not isinstance(entries, list):
         raise check.fail(parent, key, "expected a list of frames")
     frames, has_value = [], False
@@ -361,7 +421,8 @@ def _frames(check: _Checker, entries: Any, parent: _Map, key: str,
                              f"{', '.join(sorted(missing))} (give each a number)")
         has_value |= value_signal is not None
         frames.append(CommandFrame(node, msg.name, constants, value_signal,
-                                   check.number(entry, sub, "per_si", 1.0, positive=True)))
+                                   check.number(entry, sub, "per_si", 1.0, positive=True),
+                                   quantity))
     if needs_value and not has_value:
         raise check.fail(parent, key, "no frame carries the command: set one signal to "
                          "`value`")
@@ -378,6 +439,9 @@ class ProfileProtocol(BoardProtocol):
         self.capabilities = profile.capabilities
         self.status_period_s = profile.status_period_s()
         self.muscle_names = {i: s.name for i, s in zip(indices, specs, strict=True)}
+        # a muscle wound the other way round negates what the motor shaft measures
+        self.sign = {i: float(getattr(s, "direction", 1)) for i, s in zip(indices, specs,
+                                                                          strict=True)}
         self._board = dict(zip(indices, self.board_ids, strict=True))
         self._relax = dict.fromkeys(indices, 0.0)
         self._last_position = dict.fromkeys(indices, math.nan)
@@ -398,12 +462,49 @@ class ProfileProtocol(BoardProtocol):
         """Every status frame id of muscle ``i`` (``pimbs scan`` listens for these)."""
         return [fid for fid, (_, j, _) in self._rx.items() if j == i]
 
+    def _sign(self, i: int, quantity: str | None) -> float:
+        return self.sign[i] if quantity in self.profile.winding else 1.0
+
+    def ids_used(self, i: int) -> set[int]:
+        """Every CAN id muscle ``i``'s board owns. A node addressed by blocks (ODrive:
+        node_id << 5 | cmd_id) owns its whole block, used or not by PIMBS; otherwise the ids
+        of every message of the DBC."""
+        p, out = self.profile, set()
+        top = max(m.frame_id for m in p.db.messages)
+        for node in p.nodes.values():
+            if node.stride > top:
+                base = node.frame_id(0, self._board[i])
+                out.update(range(base, base + node.stride))
+            else:
+                out.update(node.frame_id(m.frame_id, self._board[i]) for m in p.db.messages)
+        return out
+
+    def armed(self, state: int | None) -> bool:
+        return self.profile.state is None or state == self.profile.armed
+
+    @property
+    def has_state(self) -> bool:
+        return self.profile.state is not None
+
+    def state_text(self, state: int | None, error: int | None) -> str:
+        p = self.profile
+        if p.state is None:
+            return ""
+        if state is None:
+            return f"no {p.state.signal} reported yet"
+        text = f"{p.state.signal} {p.state_names.get(state, '?')} ({state})"
+        for r in p.faults:
+            if r.bits and error is not None:
+                names = [n for bit, n, _ in r.bits if error & bit]
+                text += f", {r.signal} 0x{error:08X}" + (f" {'|'.join(names)}" if names else "")
+        return text
+
     def _encode(self, i: int, frame: CommandFrame, si_value: float) -> RawFrame:
         p = self.profile
         msg = p.db.get_message_by_name(frame.message)
         signals = dict(frame.constants)
         if frame.value_signal is not None:
-            signals[frame.value_signal] = si_value * frame.per_si
+            signals[frame.value_signal] = si_value * frame.per_si * self._sign(i, frame.kind)
         try:
             data = msg.encode(signals, strict=True)
         except (cantools.database.EncodeError, ValueError, KeyError) as exc:
@@ -441,17 +542,30 @@ class ProfileProtocol(BoardProtocol):
         fields: dict[str, Any] = {}
         faults = Fault(0)
         saturated = False
+        state = error = None
         for r in readings:
             v = float(values[r.signal])
+            if r is self.profile.state:
+                state = int(v)
+                continue
             if r.kind is not None:
-                if v:
-                    faults |= r.kind
+                if v:  # each named bit raises its own fault; any other bit the reading's
+                    code = int(v)
+                    known = 0
+                    for bit, _, kind in r.bits:
+                        known |= bit
+                        if code & bit:
+                            faults |= kind
+                    if code & ~known:
+                        faults |= r.kind
+                if r.bits:
+                    error = int(v)
                 continue
             if r.rail is not None and r is self.profile.status.get("tension") and not (
                     r.rail[0] < v < r.rail[1]):
                 saturated = True
             quantity = next(q for q, s in self.profile.status.items() if s is r)
-            fields[quantity] = v / r.per_si
+            fields[quantity] = v / r.per_si * self._sign(i, quantity)
         if any(r.kind is not None for r in readings):
             fields["faults"] = faults
         version = None
@@ -462,7 +576,7 @@ class ProfileProtocol(BoardProtocol):
         return [Update(i, position_m=fields.get("position"), tension_n=fields.get("tension"),
                        temperature_c=fields.get("temperature"), faults=fields.get("faults"),
                        counter=(int(fields["counter"]) & 0xF if "counter" in fields else None),
-                       saturated=saturated, version=version)]
+                       saturated=saturated, version=version, state=state, error_code=error)]
 
     def describe(self) -> str:
         return f"profile {self.name}"

@@ -12,6 +12,7 @@ from importlib import resources
 from pathlib import Path
 
 from pimbs_hw.protocol.board import BoardProtocol
+from pimbs_hw.protocol.ids import check_ids
 from pimbs_hw.protocol.pimbs_v1 import NAME as V1
 from pimbs_hw.protocol.pimbs_v1 import PimbsV1
 
@@ -31,7 +32,8 @@ def muscle_protocol(spec) -> str:
 
 
 def protocols_for(robot) -> list[BoardProtocol]:
-    """One protocol object per distinct profile of ``robot``'s muscles."""
+    """One protocol object per distinct profile of ``robot``'s muscles; a robot whose
+    boards' CAN ids collide is refused (``ids.IdCollision``)."""
     from pimbs_hw.protocol.profile import load_profile
 
     groups: dict[str, list[int]] = {}
@@ -48,4 +50,5 @@ def protocols_for(robot) -> list[BoardProtocol]:
             protocols.append(load_profile(profile_path(name)).protocol(indices, specs))
     if n_joints:  # joint encoders speak v1 JOINT frames whatever the muscle boards speak
         protocols.append(PimbsV1([], [], n_joints))
+    check_ids(robot, protocols)
     return protocols
