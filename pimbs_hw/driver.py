@@ -85,6 +85,7 @@ class _Rx:
         self.saturated = False
         self.counter: int | None = None
         self.version: str | None = None
+        self.stop: tuple[type[SafetyStop], str] | None = None  # named by the protocol
         self.period_s, self.counted = period_s, counted
         self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
         self.lost = 0  # sum of the gaps in ``gaps``
@@ -115,6 +116,8 @@ class _Rx:
             self.faults = u.faults
         if u.version is not None:
             self.version = u.version
+        if u.stop is not None and self.stop is None:
+            self.stop = (u.stop, u.note or "")
 
     def seen(self, fields: Sequence[str] = _NEEDED) -> bool:
         return all(np.isfinite(self.times[f]) for f in fields)
@@ -223,6 +226,11 @@ class ArmDriver:
 
     def _configure(self, timeout_s: float) -> None:
         """Send limits, wait for every board to answer configured, then relax (safe start)."""
+        for proto in self.protocols:
+            try:
+                proto.connect(self.transport, [self._board_limits(i) for i in proto.indices])
+            except SafetyStop as stop:
+                self._trip(stop)
         setup = [frame for i, p in enumerate(self._proto)
                  for frame in p.setup(i, self._board_limits(i))]  # type: ignore[union-attr]
         deadline = time.monotonic() + timeout_s
@@ -305,6 +313,8 @@ class ArmDriver:
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
                                          f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
                                          **where))
+            if rx.stop is not None:
+                self._trip(rx.stop[0](rx.stop[1], **where))
             if (found := fault_stop(rx.faults)) is not None:
                 self._trip(found[0](found[1], **where))
             if rx.saturated:
@@ -460,9 +470,11 @@ class ArmDriver:
         if self.tripped is None:
             self.tripped = stop
             reached = self._relax_quietly()
-            stop.end_state = ("relaxed: every board at its holding floor" if reached else
-                              "; ".join(p.unreachable(self.limits.watchdog_s)
-                                        for p in self.protocols if p.indices))
+            left = [note for p in self.protocols for note in p.not_relaxed()]
+            stop.end_state = ("; ".join(p.unreachable(self.limits.watchdog_s)
+                                        for p in self.protocols if p.indices) if not reached
+                              else "relaxed: every board at its holding floor" if not left
+                              else "relaxed where the boards took it; " + "; ".join(left))
         raise stop
 
     def _relax_quietly(self) -> bool:

@@ -111,6 +111,10 @@ class MockArm:
         if len(ids) != m or not all(0 <= b < MAX_BOARDS for b in ids):
             raise ValueError(f"{self.robot.name}: board ids must be unique in 0..{MAX_BOARDS - 1}")
         self._by_frame = {fid: i for i, b in enumerate(self.boards) for fid in b.frame_ids}
+        self._broadcast: dict[int, list[int]] = {}  # ids every board of a kind hears (NMT)
+        for i, b in enumerate(self.boards):
+            for fid in getattr(b, "broadcast_ids", ()):
+                self._broadcast.setdefault(fid, []).append(i)
         self._home = False
         self._sent: dict[int, int] = {}  # frames sent per id (drop-frames keeps every 4th)
         try:
@@ -137,6 +141,11 @@ class MockArm:
         name = muscle_protocol(spec)
         if name == "pimbs-v1":
             return V1Board(spec, now, self.status_period_s)
+        if name.endswith(".cia402.yaml"):
+            from pimbs_hw.mock.cia402_drive import Cia402Board
+            from pimbs_hw.protocol.cia402_config import load_drive_file
+
+            return Cia402Board(spec, load_drive_file(name), now)
         from pimbs_hw.protocol.profile import load_profile
 
         return ProfileBoard(spec, load_profile(profile_path(name)), now)
@@ -211,9 +220,15 @@ class MockArm:
         if self._bus_off:
             return
         i = self._by_frame.get(frame.arbitration_id)
-        if i is None:
-            return
         now = time.monotonic()
+        if i is None:
+            for j in self._broadcast.get(frame.arbitration_id, ()):
+                with self._lock:
+                    reply = self.boards[j].receive(frame.arbitration_id, frame.data, now,
+                                                   self._readings[j])
+                if reply:
+                    self._send_status(j, now, reply=True)
+            return
         with self._lock:
             reply = self.boards[i].receive(frame.arbitration_id, frame.data, now,
                                            self._readings[i])
@@ -278,6 +293,9 @@ class MockArm:
                 if spec.kind == "bus-off" and not self._bus_off:
                     self.transport.send_error(CAN_ERR_BUSOFF)
                     self._bus_off = True
+        for board in self.boards:
+            if hasattr(board, "inject"):
+                board.inject({f.kind for f in self._active if f.hits(board.spec.name)})
         self.plant.heat_rate_c_per_s[:] = [
             OVERHEAT_RATE_C_PER_S if self._fault_on("overheat", name) else 0.0
             for name in self.muscles]

@@ -1,6 +1,7 @@
 """Fault injection for the simulated boards: ``--fault KIND[:MUSCLE][@TRIGGER]``.
 
-KIND      silent-board, drop-frames, corrupt-frames, overheat, saturate-loadcell, bus-off
+KIND      silent-board, drop-frames, corrupt-frames, overheat, saturate-loadcell, bus-off;
+          on CiA 402 drives also drive-fault and lost-heartbeat
 MUSCLE    muscle name (``m2``); omit or ``*`` for bus-wide kinds (bus-off) or every muscle
 TRIGGER   ``12``  sample index of the collection (``MockArm.set_sample``)
           ``2.5s`` seconds after the mock started
@@ -15,7 +16,7 @@ import re
 from dataclasses import dataclass
 
 KINDS = ("silent-board", "drop-frames", "corrupt-frames", "overheat", "saturate-loadcell",
-         "bus-off")
+         "bus-off", "drive-fault", "lost-heartbeat")
 _SPEC = re.compile(r"^(?P<kind>[a-z-]+)(?::(?P<muscle>[^@]+))?(?:@(?P<trigger>[0-9.]+[sc]?))?$")
 
 

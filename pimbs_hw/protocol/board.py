@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from pimbs_hw.protocol.codec import Fault
+from pimbs_hw.safety import SafetyStop
 
 COMMAND_KINDS = ("length", "tension", "relax", "stop")
 RawFrame = tuple[int, bytes]
@@ -81,6 +82,10 @@ class Update:
     version: str | None = None
     joint: bool = False
     angle_rad: float | None = None
+    # a protocol that reads its device's own state (CiA 402) names the stop it calls for
+    # and what the device reported; the driver raises it like its own limit stops
+    stop: type[SafetyStop] | None = None
+    note: str | None = None
 
 
 class CorruptFrame(ValueError):
@@ -101,6 +106,11 @@ class BoardProtocol(ABC):
     def __init__(self, indices: Sequence[int], board_ids: Sequence[int]) -> None:
         self.indices = tuple(indices)
         self.board_ids = tuple(board_ids)
+
+    def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
+        """Configure the boards by request and answer before the first ``setup`` round
+        (CANopen SDO); ``limits`` per muscle of ``indices``. Frame protocols need nothing."""
+        return None
 
     @abstractmethod
     def setup(self, i: int, limits: BoardLimits) -> list[RawFrame]:
@@ -129,6 +139,11 @@ class BoardProtocol(ABC):
 
     def describe(self) -> str:
         return self.name
+
+    def not_relaxed(self) -> list[str]:
+        """Boards that reported a state in which a relax cannot reach them (a drive in
+        Fault), each with what it reported; [] where the protocol cannot tell."""
+        return []
 
     def unreachable(self, watchdog_s: float) -> str:
         """What these boards do when the host cannot reach them any more (the end state)."""
