@@ -1,0 +1,220 @@
+"""CiA 402 servo drives over CANopen (the ``canopen`` package) from a maker's public EDS:
+drive-file checks that name the EDS and the object, the host's controlword sequence and
+statusword reading against the standard's state machine, every fault kind ending in the
+state the drive reported, Ctrl-C, ``pimbs scan`` and the whole collection over ``virtual``
+and the SLCAN pty."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.recording import read_recording
+from pimbs_cli.main import main
+from pimbs_hw import open_arm
+from pimbs_hw.connect import SIMULATED_LIMITS
+from pimbs_hw.driver import ArmDriver
+from pimbs_hw.mock import MockArm
+from pimbs_hw.protocol.cia402_config import DriveFileError, load_drive_file
+from pimbs_hw.protocol.cia402_states import state_name
+from pimbs_hw.safety import BoardFault, BoardSilent, BusOff, Overheat, SafetyStop
+from pimbs_hw.transport import CanTransport
+from tests.test_collect import _balance_residual
+from tests.test_driver_mock import wait_until
+
+HERE = Path(__file__).parent.parent / "fixtures" / "cia402"
+ROBOT = HERE / "two-link-cia402.muscles.yaml"  # CSP/CST variant of the EDS
+TORQUE_ROBOT = HERE / "two-link-cia402-torque.muscles.yaml"  # the EDS as AMD publishes it
+LIMITS = SIMULATED_LIMITS
+# CiA 402-2 controlword commands and statusword codings, written out from the standard
+SHUTDOWN, SWITCH_ON, ENABLE_OPERATION, QUICK_STOP, FAULT_RESET = 0x06, 0x07, 0x0F, 0x02, 0x80
+WALK = ["Switch on disabled", "Ready to switch on", "Switched on", "Operation enabled"]
+
+
+# --------------------------------------------------------------------- the drive file
+def _drive_file(tmp_path: Path, objects: str, eds: str = "foc-mc.eds") -> Path:
+    (tmp_path / eds).write_text((HERE / "foc-mc.eds").read_text())
+    path = tmp_path / "d.cia402.yaml"
+    path.write_text(f"eds: {eds}\nobjects:\n{objects}")
+    return path
+
+
+@pytest.mark.parametrize("objects, says", [
+    ('  tension: {actual: "0x6077:0", target: "0x6071:0"}\n'
+     '  position: {actual: "0x6064:0", target: "0x607A:0"}\n',
+     "EDS foc-mc.eds has no object 0x607A:00 (position target)"),
+    ('  tension: {actual: "0x6077:0", target: "0x6071:0"}\n'
+     '  position: {actual: "0x1017:0"}\n',
+     "object 0x1017:00 (position actual, Producer heartbeat time) cannot be mapped"),
+    ('  tension: {actual: "0x6077:0", target: "0x6041:0"}\n  position: {actual: "0x6064:0"}\n',
+     "object 0x6041:00 (tension target, Statusword) is not writable"),
+    ('  tension: {actual: "0x6077:0", target: "6071"}\n  position: {actual: "0x6064:0"}\n',
+     "objects.tension.target: '6071' is not an object"),
+    ('  tension: {actual: "0x6077:0"}\n  position: {actual: "0x6064:0"}\n',
+     "objects.tension needs `target:`"),
+])
+def test_drive_file_errors_name_the_eds_and_the_object(tmp_path, objects, says):
+    path = _drive_file(tmp_path, objects)
+    with pytest.raises(DriveFileError) as err:
+        load_drive_file(path)
+    assert says in str(err.value) and str(path) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_or_broken_eds_is_one_line(tmp_path):
+    path = tmp_path / "d.cia402.yaml"
+    path.write_text('eds: nowhere.eds\nobjects: {tension: {actual: "0x6077:0"}}\n')
+    with pytest.raises(DriveFileError, match="nowhere.eds: cannot read the EDS"):
+        load_drive_file(path)
+    (tmp_path / "bad.eds").write_text("[1000]\nDataType=0x0007\n")  # no ParameterName
+    path.write_text('eds: bad.eds\nobjects: {}\n')
+    with pytest.raises(DriveFileError, match="bad.eds: not a readable EDS"):
+        load_drive_file(path)
+
+
+def test_statusword_codings_of_the_standard():
+    # (statusword, state): CiA 402-2 state coding; bits 4 (voltage), 7, 9 (remote) and above
+    # are not part of it and must not change the state read
+    for word, state in [(0x0000, "Not ready to switch on"), (0x0040, "Switch on disabled"),
+                        (0x0021, "Ready to switch on"), (0x0023, "Switched on"),
+                        (0x0027, "Operation enabled"), (0x0007, "Quick stop active"),
+                        (0x000F, "Fault reaction active"), (0x0008, "Fault")]:
+        for extra in (0x0000, 0x0010, 0x0290, 0x1600):
+            assert state_name(word | extra) == state, hex(word | extra)
+
+
+# --------------------------------------------------------------------- state machine
+def test_host_walks_the_state_machine_and_reads_what_the_drive_reports():
+    with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        proto = driver.protocols[0]
+        for k, board in enumerate(mock.boards):
+            assert board.controlwords[:3] == [SHUTDOWN, SWITCH_ON, ENABLE_OPERATION]
+            assert board.history == WALK
+            assert proto.state[k] == board.state == "Operation enabled"
+            assert proto.identity[k] == (0x586, 0x13, 0x11)  # 0x1018 of the EDS
+            assert board.node.sdo[0x1017].raw == 50  # heartbeat producer set over SDO
+            assert board.consumer_ms == 1000  # watches the host's heartbeat (watchdog)
+        driver.command("tension", 40.0)
+        state = driver.dwell(0.3)
+        assert state.tension == pytest.approx(np.full(4, 40.0), abs=2.0)
+        assert mock.snapshot().modes == ("tension",) * 4
+        assert all(b.mode_op == 10 for b in mock.boards)  # cyclic synchronous torque
+        driver.command("length", state.length)
+        driver.dwell(0.2)
+        assert all(b.mode_op == 8 for b in mock.boards)  # cyclic synchronous position
+        assert set(sum((b.controlwords[3:] for b in mock.boards), [])) == {ENABLE_OPERATION}
+
+
+def test_a_drive_left_in_fault_is_reset_by_a_rising_edge_then_walked():
+    link = "virtual:cia402-fault-reset"
+    with MockArm(ROBOT, link, speed=10.0) as mock:
+        board = mock.boards[2]
+        board._fault("drive-fault")  # latched before the host connects (a crashed host)
+        board.inject(set())  # the cause is gone; the fault stays latched until a reset
+        with ArmDriver(CanTransport(link), mock.robot, LIMITS, connect_timeout_s=5.0):
+            cw = board.controlwords
+            assert cw[:2] == [0x00, FAULT_RESET]  # bit 7 low, then high: the rising edge
+            assert cw[2:5] == [SHUTDOWN, SWITCH_ON, ENABLE_OPERATION]
+            assert board.history == ["Switch on disabled", "Fault reaction active", "Fault",
+                                     *WALK]
+
+
+def test_torque_only_drive_uses_profile_torque_and_refuses_length_by_name():
+    with open_arm("virtual", TORQUE_ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        assert all(b.mode_op == 4 for b in mock.boards)  # 0x6502 = 0xC: no CST
+        with pytest.raises(ValueError, match=r"foc-mc.eds\): the drive file names no "
+                                             r"position target \(0x607A\)"):
+            driver.command("length", 0.0)
+        driver.command("tension", 30.0)
+        assert driver.dwell(0.2).tension == pytest.approx(np.full(4, 30.0), abs=2.0)
+
+
+# --------------------------------------------------------------------- faults
+FAULTED = r"drive reports 'Fault( reaction active)?' \(statusword 0x021[8F]\); "
+CASES = [  # (fault, stop, what the message must carry: the drive's own state and EMCY)
+    ("drive-fault:m1@2", BoardFault, FAULTED + r"EMCY 0x2310 \(Current\), error register "
+                                               r"0x03 \(generic, current\)"),
+    ("overheat:m0@2", Overheat, FAULTED + r"EMCY 0x4310 \(Temperature\), error register 0x09 "
+                                          r"\(generic, temperature\)"),
+    ("lost-heartbeat:m3@2", BoardSilent, r"no heartbeat from CANopen node 4 for .* last NMT "
+                                         r"state OPERATIONAL, drive reports 'Operation enabled'"),
+    ("bus-off@2", BusOff, "bus-off"),
+]
+
+
+@pytest.mark.parametrize("spec, stop, says", CASES, ids=[c[0].split(":")[0].split("@")[0]
+                                                         for c in CASES])
+def test_every_fault_ends_in_a_named_state_the_drive_reported(spec, stop, says):
+    with open_arm("virtual", ROBOT, faults=[spec], speed=10.0, limits=LIMITS) as (driver, mock):
+        with pytest.raises(stop) as err:
+            for sample in range(40):
+                mock.set_sample(sample)
+                driver.command("tension", 60.0)
+                driver.dwell(0.1)
+        assert sample >= 2, "fault fired too early"
+        assert re.search(says, str(err.value)), str(err.value)
+        if stop is BusOff:  # nothing reaches the drives: their heartbeat consumer decides
+            assert "last reported: m0 'Operation enabled'" in err.value.end_state
+            assert "0x1016" in err.value.end_state
+            return
+        muscle = spec.split(":")[1].split("@")[0]
+        assert err.value.muscle == muscle
+        i = mock.muscles.index(muscle)
+        if stop is BoardSilent:  # the drive itself is fine: every drive took the relax
+            assert err.value.end_state == "relaxed: every board at its holding floor"
+            assert wait_until(lambda: mock.snapshot().relaxed().all())
+        else:  # the faulted drive cannot relax: said so, with its own state
+            assert err.value.end_state.startswith("relaxed where the boards took it; "
+                                                  f"{muscle} (node {i + 1}): drive reported "
+                                                  "'Fault")
+            assert wait_until(lambda: mock.boards[i].state == "Fault")
+            assert mock.snapshot().modes[i] == "off"
+            others = [j for j in range(4) if j != i]
+            assert wait_until(lambda: mock.snapshot().relaxed()[others].all())
+        with pytest.raises(SafetyStop):
+            driver.command("tension", 60.0)
+
+
+def test_ctrl_c_leaves_drives_at_the_floor_then_their_heartbeat_watchdog_acts():
+    with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        with pytest.raises(KeyboardInterrupt):
+            with driver:
+                driver.command("tension", 150.0)
+                driver.dwell(0.2)
+                raise KeyboardInterrupt
+        assert wait_until(lambda: mock.snapshot().relaxed().all(), timeout=0.8)
+        # no host heartbeat any more: each drive's consumer (1 s) faults it, EMCY 0x8130
+        assert wait_until(lambda: all(b.state == "Fault" for b in mock.boards), timeout=3.0)
+        assert all(b.error_register & 0x10 for b in mock.boards)  # communication error
+        assert mock.snapshot().modes == ("off",) * 4  # power stage off: slack, not tense
+
+
+# --------------------------------------------------------------------- scan and collection
+def test_scan_lists_canopen_nodes_with_identity_and_state():
+    res = CliRunner().invoke(main, ["scan", "--port", "virtual", "--robot", str(ROBOT),
+                                    "--seconds", "0.3"])
+    assert res.exit_code == 0, res.output
+    for node in range(1, 5):
+        assert f"CANopen node {node}" in res.output
+    assert "vendor 0x00000586 product 0x00000013 revision 0x00000011" in res.output
+    assert "Switch on disabled" in res.output and "PRE-OPERATIONAL" in res.output
+
+
+@pytest.mark.parametrize("port", ["virtual", "slcan-pty"])
+def test_collection_runs_hil_on_cia402_drives(tmp_path, port):
+    out = tmp_path / "c.parquet"
+    res = CliRunner().invoke(main, ["collect", "--port", port, "--robot", str(ROBOT),
+                                    "--samples", "4", "--seed", "3", "--out", str(out),
+                                    "--mock-speed", "20", "--settle-window", "0.06"])
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    arm = ArmModel.load(ROBOT)
+    assert rec.n_rows == 4 and rec.array("settled").all()
+    assert np.abs(rec.theta - rec.theta_command).max() < 2e-3
+    assert np.abs(_balance_residual(arm, rec)).max() < 0.05
+    assert np.isnan(rec.temperature).all()  # the EDS has no temperature: none invented
