@@ -29,6 +29,7 @@ from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
+from pimbs_hw.collection.temperature import filled
 
 # m: how far short of the overshoot the final approach may start; its last motion is then still
 # APPROACH_TRAVEL - OVERSHOOT_TOL = 1.1 mm, beyond a full friction reversal (2 bands, 1 mm)
@@ -158,7 +159,7 @@ class Collector:
         theta = self._theta(r, theta_command)
         return {"sample": i, "time": np.datetime64(self.now().replace(tzinfo=None), "us"),
                 "theta": theta, "theta_command": theta_command, "tension": r.tension,
-                "length": r.length, "temperature": r.temperature,
+                "length": r.length, "temperature": filled(r.temperature),
                 "approach": self.link.approach,
                 "tau_gravity": self.model.gravity_torque(theta),
                 # extra columns: how the sample settled (data quality, kept by all tools)
