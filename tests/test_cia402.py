@@ -202,7 +202,9 @@ def test_scan_lists_canopen_nodes_with_identity_and_state():
     for node in range(1, 5):
         assert f"CANopen node {node}" in res.output
     assert "vendor 0x00000586 product 0x00000013 revision 0x00000011" in res.output
-    assert "Switch on disabled" in res.output and "PRE-OPERATIONAL" in res.output
+    # powered up, not yet enabled by a host: the state each drive's statusword reports; no
+    # heartbeat yet (the EDS's producer time 0x1017 is 0 until a host sets it)
+    assert res.output.count("CiA 402 'Switch on disabled'  no heartbeat (0x1017 = 0 ms)") == 4
 
 
 @pytest.mark.parametrize("port", ["virtual", "slcan-pty"])

@@ -36,6 +36,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from pimbs_hw.protocol import cia402_states as sm
 from pimbs_hw.protocol.board import BoardLimits, BoardProtocol, Capabilities, RawFrame, Update
+from pimbs_hw.protocol.canopen_link import attached
 from pimbs_hw.protocol.cia402_config import DriveFile, DriveFileError, ObjectRef, find_object
 from pimbs_hw.protocol.codec import Fault
 from pimbs_hw.safety import BoardFault, BoardSilent, Overheat, SafetyStop, WatchdogExpired
@@ -46,17 +47,6 @@ STATE_WAIT_S = 1.0  # per state machine step
 HEARTBEAT_MISSES = 3  # producer periods without a heartbeat = the drive is lost
 OPERATIONAL = 5  # NMT state code in a heartbeat
 _EMCY = struct.Struct("<HB5s")
-
-
-class _HostNetwork(canopen.Network):
-    """A canopen network that sends through our transport (with its supervision)."""
-
-    def __init__(self, transport) -> None:
-        super().__init__()
-        self._transport = transport
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        self._transport.send(can_id, bytes(data))
 
 
 def _pdo_plan(node, pdos, refs: Sequence[ObjectRef], eds: str, what: str) -> list:
@@ -135,26 +125,14 @@ class Cia402Protocol(BoardProtocol):
     # -- connect ---------------------------------------------------------------------------
     def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
         """NMT, SDO configuration, PDO mapping and the state machine walk of every drive."""
-        add = getattr(transport, "add_listener", None)
-        if add is None:
-            raise DriveFileError(f"port {transport.port}: CiA 402 drives need a CAN port "
-                                 "(socketcan, an SLCAN adapter, --port virtual), not a "
-                                 "serial link")
-        network = _HostNetwork(transport)
-        for node in self.nodes:
-            network.add_node(node)
-            node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
-        listener = canopen.network.MessageListener(network)
-        add(listener)
-        try:
+        with attached(transport) as network:
+            for node in self.nodes:
+                network.add_node(node)
+                node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
             for k, node in enumerate(self.nodes):
                 self._bring_up(k, node, limits[k])
             for node in self.nodes:
                 node.nmt.send_command(0x01)  # start remote node: PDOs flow
-        finally:
-            transport.remove_listener(listener)
-            for node in self.nodes:
-                network.pop(node.id, None)
         now = time.monotonic()
         self._heartbeat_at = [now] * len(self.nodes)
 
