@@ -7,6 +7,7 @@ and the SLCAN pty."""
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,14 @@ from pimbs_hw.driver import ArmDriver
 from pimbs_hw.mock import MockArm
 from pimbs_hw.protocol.cia402_config import DriveFileError, load_drive_file
 from pimbs_hw.protocol.cia402_states import state_name
-from pimbs_hw.safety import BoardFault, BoardSilent, BusOff, Overheat, SafetyStop
+from pimbs_hw.safety import (
+    BoardFault,
+    BoardSilent,
+    BusOff,
+    Overheat,
+    SafetyStop,
+    WatchdogExpired,
+)
 from pimbs_hw.transport import CanTransport
 from tests.test_collect import _balance_residual
 from tests.test_driver_mock import wait_until
@@ -141,7 +149,7 @@ CASES = [  # (fault, stop, what the message must carry: the drive's own state an
                                                r"0x03 \(generic, current\)"),
     ("overheat:m0@2", Overheat, FAULTED + r"EMCY 0x4310 \(Temperature\), error register 0x09 "
                                           r"\(generic, temperature\)"),
-    ("lost-heartbeat:m3@2", BoardSilent, r"no heartbeat from CANopen node 4 for .* last NMT "
+    ("lost-heartbeat:m3@2", BoardSilent, r"no heartbeat from CANopen node 4 over .* last NMT "
                                          r"state OPERATIONAL, drive reports 'Operation enabled'"),
     ("bus-off@2", BusOff, "bus-off"),
 ]
@@ -192,6 +200,18 @@ def test_ctrl_c_leaves_drives_at_the_floor_then_their_heartbeat_watchdog_acts():
         assert wait_until(lambda: all(b.state == "Fault" for b in mock.boards), timeout=3.0)
         assert all(b.error_register & 0x10 for b in mock.boards)  # communication error
         assert mock.snapshot().modes == ("off",) * 4  # power stage off: slack, not tense
+
+
+def test_a_hung_host_is_seen_by_each_drives_heartbeat_consumer():
+    with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        driver.command("tension", 40.0)
+        driver.dwell(0.1)
+        time.sleep(1.6)  # the host hangs: no commands, so no host heartbeat (consumer 1 s)
+        with pytest.raises(WatchdogExpired) as err:
+            driver.read_state()
+        assert re.search(FAULTED + r"EMCY 0x8130 \(Monitoring\), error register 0x11 "
+                                   r"\(generic, communication\)", str(err.value)), str(err.value)
+        assert all(b.state == "Fault" for b in mock.boards)
 
 
 # --------------------------------------------------------------------- scan and collection

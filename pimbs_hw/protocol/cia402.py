@@ -24,6 +24,7 @@ from its EMCY (code, error register 0x1001), its NMT state from its heartbeat.
 
 from __future__ import annotations
 
+import math
 import struct
 import threading
 import time
@@ -116,15 +117,17 @@ class Cia402Protocol(BoardProtocol):
         self.identity: list[tuple[int, int, int] | None] = [None] * n
         self.tension_mode, self.position_mode = [10] * n, [8] * n
         self.relax_n = [s.f_floor for s in self.specs]
-        self._heartbeat_at = [float("nan")] * n
+        self._since_heartbeat = [0] * n  # TPDOs decoded since the last heartbeat
         self._enabled = [False] * n  # reached Operation enabled at connect
         self._stopping = [False] * n  # a quick stop was commanded
         self._operational = [False] * n  # a heartbeat has said OPERATIONAL since connect
+        self._patience_s = 0.0  # the host watchdog time, from ``connect``
         self._lock = threading.Lock()
 
     # -- connect ---------------------------------------------------------------------------
     def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
         """NMT, SDO configuration, PDO mapping and the state machine walk of every drive."""
+        self._patience_s = max(lim.watchdog_s for lim in limits) if limits else 0.0
         with attached(transport) as network:
             for node in self.nodes:
                 network.add_node(node)
@@ -133,8 +136,7 @@ class Cia402Protocol(BoardProtocol):
                 self._bring_up(k, node, limits[k])
             for node in self.nodes:
                 node.nmt.send_command(0x01)  # start remote node: PDOs flow
-        now = time.monotonic()
-        self._heartbeat_at = [now] * len(self.nodes)
+        self._since_heartbeat = [0] * len(self.nodes)
 
     def _where(self, k: int) -> dict:
         return {"muscle": self.specs[k].name, "board_id": self.board_ids[k]}
@@ -283,7 +285,7 @@ class Cia402Protocol(BoardProtocol):
             return []
         k = self.board_ids.index(node_id)
         if function == 0x700:  # heartbeat: the drive's NMT state
-            self._heartbeat_at[k] = time.monotonic()
+            self._since_heartbeat[k] = 0
             self.nmt_state[k] = NMT_STATES.get(data[0] & 0x7F, f"0x{data[0]:02X}")
             if data[0] & 0x7F == OPERATIONAL:
                 self._operational[k] = True
@@ -341,13 +343,16 @@ class Cia402Protocol(BoardProtocol):
         if self._enabled[k] and state != sm.OPERATION_ENABLED and not (
                 self._stopping[k] and state in ("Quick stop active", "Switch on disabled")):
             return BoardFault, Fault.MOTOR, f"drive left 'Operation enabled': {said}"
-        age = time.monotonic() - self._heartbeat_at[k]
-        limit = HEARTBEAT_MISSES * self.drive.heartbeat_ms / 1000.0
-        if self._enabled[k] and age > limit:
+        # counted in frames, not seconds: a host that reads its queue late (loaded, or
+        # hung for a moment) sees heartbeats and PDOs in the order the drive sent them
+        self._since_heartbeat[k] += 1
+        limit_s = max(HEARTBEAT_MISSES * self.drive.heartbeat_ms / 1000.0, self._patience_s)
+        frames = len(self.tpdos[k]) * math.ceil(limit_s / self.status_period_s)
+        if self._enabled[k] and self._since_heartbeat[k] > frames:
             return BoardSilent, Fault(0), (
-                f"no heartbeat from CANopen node {self.nodes[k].id} for {age:.2f} s (producer "
-                f"time 0x1017 = {self.drive.heartbeat_ms} ms) although its PDOs arrive; last "
-                f"NMT state {self.nmt_state[k]}, {said}")
+                f"no heartbeat from CANopen node {self.nodes[k].id} over its last "
+                f"{self._since_heartbeat[k]} PDOs (about {limit_s:g} s; producer time 0x1017 "
+                f"= {self.drive.heartbeat_ms} ms); last NMT state {self.nmt_state[k]}, {said}")
         return None, Fault(0), None
 
     # -- reporting -------------------------------------------------------------------------
