@@ -6,6 +6,7 @@ and the SLCAN pty."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import time
 from pathlib import Path
@@ -15,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from pimbs_calibration.arm_model import ArmModel
+from pimbs_calibration.description import load_robot
 from pimbs_calibration.recording import read_recording
 from pimbs_cli.main import main
 from pimbs_hw import open_arm
@@ -242,3 +244,49 @@ def test_collection_runs_hil_on_cia402_drives(tmp_path, port):
     # the EDS has no temperature object: a fill, and the metadata says so (none invented)
     assert (rec.temperature == 25.0).all()
     assert rec.meta["temperature"].startswith("not reported by the boards of m0, m1, m2, m3")
+
+
+def test_quick_stop_is_the_standards_and_its_end_is_reported_truthfully():
+    with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+        driver.command("tension", 40.0)
+        driver.dwell(0.1)
+        driver.stop()
+        assert wait_until(lambda: all(b.controlwords[-1] == QUICK_STOP for b in mock.boards))
+        # quick stop option code 0x605A = 2 in the EDS: ramp down, then Switch on disabled
+        assert wait_until(lambda: all(b.history[-2:] == ["Quick stop active",
+                                                         "Switch on disabled"]
+                                      for b in mock.boards))
+        driver.read_state(0.1)  # a commanded quick stop is not a fault
+        proto = driver.protocols[0]
+        assert wait_until(lambda: (driver.read_state(0.02), proto.state)[1]
+                          == ["Switch on disabled"] * 4)
+        assert proto.not_relaxed()[0] == ("m0 (node 1): drive reported 'Switch on disabled', "
+                                          "power stage off or stopping, not at the holding "
+                                          "floor")
+
+
+def test_a_missing_drive_is_named_at_connect():
+    robot = load_robot(ROBOT)
+    moved = dataclasses.replace(robot, muscles=tuple(
+        dataclasses.replace(m, board_id=m.board_id + 10) for m in robot.muscles))
+    link = "virtual:cia402-missing"
+    with MockArm(robot, link, speed=10.0):
+        with pytest.raises(BoardSilent) as err:
+            ArmDriver(CanTransport(link), moved, LIMITS, connect_timeout_s=5.0)
+    assert "no SDO answer from CANopen node 11 (foc-mc-csp.eds)" in str(err.value)
+    assert err.value.muscle == "m0"
+
+
+def test_cli_refuses_a_broken_drive_file_in_one_line_and_writes_nothing(tmp_path):
+    for name in ("foc-mc-csp.eds", "two-link-cia402.muscles.yaml"):
+        (tmp_path / name).write_text((HERE / name).read_text().replace(
+            "../../calibration", str(HERE.parent.parent / "calibration")))
+    (tmp_path / "foc-mc-csp.cia402.yaml").write_text(
+        (HERE / "foc-mc-csp.cia402.yaml").read_text().replace('"0x6077:0"', '"0x6078:0"'))
+    out = tmp_path / "c.parquet"
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot",
+                                    str(tmp_path / "two-link-cia402.muscles.yaml"),
+                                    "--samples", "2", "--out", str(out)])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "EDS foc-mc-csp.eds has no object 0x6078:00 (tension actual)" in res.output
+    assert len(res.output.strip().splitlines()) == 1 and not out.exists()
