@@ -290,3 +290,31 @@ def test_cli_refuses_a_broken_drive_file_in_one_line_and_writes_nothing(tmp_path
     assert res.exit_code == 1 and "Traceback" not in res.output
     assert "EDS foc-mc-csp.eds has no object 0x6078:00 (tension actual)" in res.output
     assert len(res.output.strip().splitlines()) == 1 and not out.exists()
+
+
+@pytest.mark.parametrize("start, words, end, statusword", [
+    # (state, controlwords in order, state after, statusword & 0x6F): CiA 402-2 transitions
+    ("Switch on disabled", [0x0F], "Switch on disabled", 0x40),  # enable needs shutdown first
+    ("Switch on disabled", [0x06], "Ready to switch on", 0x21),  # 2
+    ("Ready to switch on", [0x0F], "Operation enabled", 0x27),  # 3 + 4
+    ("Operation enabled", [0x07], "Switched on", 0x23),  # 5
+    ("Operation enabled", [0x06], "Ready to switch on", 0x21),  # 8
+    ("Operation enabled", [0x00], "Switch on disabled", 0x40),  # 9
+    ("Operation enabled", [0x02], "Quick stop active", 0x07),  # 11
+    ("Switched on", [0x02], "Switch on disabled", 0x40),  # 10
+    ("Fault", [0x80], "Fault", 0x08),  # bit 7 already high: no rising edge, no reset
+    ("Fault", [0x00, 0x80], "Switch on disabled", 0x40),  # 15
+    ("Fault", [0x00, 0x0F], "Fault", 0x08),  # nothing but a reset leaves Fault
+])
+def test_simulated_drive_follows_the_standards_transitions(start, words, end, statusword):
+    from types import SimpleNamespace
+
+    from pimbs_hw.mock.cia402_drive import Cia402Board
+
+    spec = SimpleNamespace(name="m0", board_id=5, f_floor=10.0)
+    board = Cia402Board(spec, load_drive_file(HERE / "foc-mc.cia402.yaml"), 0.0)
+    board.state, board.cw = start, 0x80 if start == "Fault" else 0x00
+    for word in words:
+        board.node.sdo[0x6040].raw = word  # as an SDO download from a host would write it
+    assert board.state == end
+    assert board.node.sdo[0x6041].raw & 0x6F == statusword

@@ -209,7 +209,9 @@ class Collector:
         lo, hi = s.tension_range
         s.tension_range = (min(lo, float(row["tension"].min())),
                            max(hi, float(row["tension"].max())))
-        s.temperature_max = max(s.temperature_max, float(row["temperature"].max()))
+        measured = held.reading.temperature[np.isfinite(held.reading.temperature)]
+        if measured.size:  # the fill of boards that report none is no measurement
+            s.temperature_max = max(s.temperature_max, float(measured.max()))
         if not held.settled:
             s.unsettled += 1
             self._warn(f"sample {i} did not settle within {self.settle.timeout:g} s "

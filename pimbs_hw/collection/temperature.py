@@ -32,3 +32,8 @@ def temperature_note(robot) -> str:
 def filled(temperature: np.ndarray) -> np.ndarray:
     """The reading with the fill where a board reported no temperature (NaN)."""
     return np.where(np.isfinite(temperature), temperature, TEMPERATURE_FILL_C)
+
+
+def hottest(value: float) -> str:
+    """The summary's hottest temperature, or that no board reported one."""
+    return f"{value:.1f} °C" if np.isfinite(value) else "not reported"
