@@ -136,12 +136,12 @@ class MockArm:
         self._readings = self._read_all(self.plant.state)
 
     def _board(self, spec, now: float):
-        from pimbs_hw.protocol.profiles import muscle_protocol, profile_path
+        from pimbs_hw.protocol.profiles import is_cia402, muscle_protocol, profile_path
 
         name = muscle_protocol(spec)
         if name == "pimbs-v1":
             return V1Board(spec, now, self.status_period_s)
-        if name.endswith(".cia402.yaml"):
+        if is_cia402(name):
             from pimbs_hw.mock.cia402_drive import Cia402Board
             from pimbs_hw.protocol.cia402_config import load_drive_file
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 import struct
-import threading
 import time
 from collections.abc import Sequence
 
@@ -122,7 +121,6 @@ class Cia402Protocol(BoardProtocol):
         self._stopping = [False] * n  # a quick stop was commanded
         self._operational = [False] * n  # a heartbeat has said OPERATIONAL since connect
         self._patience_s = 0.0  # the host watchdog time, from ``connect``
-        self._lock = threading.Lock()
 
     # -- connect ---------------------------------------------------------------------------
     def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
@@ -246,14 +244,14 @@ class Cia402Protocol(BoardProtocol):
 
     def command(self, i: int, kind: str, value: float = 0.0) -> list[RawFrame]:
         k = self.indices.index(i)
-        drive, values = self.drive, {0x6040: sm.ENABLE_OPERATION}
+        drive, values = self.drive, {(0x6040, 0): sm.ENABLE_OPERATION}
         if kind == "stop":
-            values[0x6040] = sm.QUICK_STOP
+            values[(0x6040, 0)] = sm.QUICK_STOP
             self._stopping[k] = True
         elif kind in ("relax", "tension"):
-            values[0x6060] = self.tension_mode[k]
+            values[(0x6060, 0)] = self.tension_mode[k]
             target = self.relax_n[k] if kind == "relax" else value
-            values[drive.tension_target.index] = self._encode(k, drive.tension_target, target)
+            values[drive.tension_target.key] = self._encode(k, drive.tension_target, target)
         elif kind == "length":
             if drive.position_target is None or self.position_mode[k] is None:
                 why = ("the drive file names no position target (0x607A)"
@@ -261,17 +259,18 @@ class Cia402Protocol(BoardProtocol):
                        "Supported drive modes 0x6502 lists no position mode")
                 raise ValueError(f"muscle {self.specs[k].name}: length control is not "
                                  f"available on its drive ({drive.eds.name}): {why}")
-            values[0x6060] = self.position_mode[k]
-            values[drive.position_target.index] = self._encode(k, drive.position_target, value)
+            values[(0x6060, 0)] = self.position_mode[k]
+            values[drive.position_target.key] = self._encode(k, drive.position_target, value)
         else:
             raise ValueError(f"unknown command kind {kind!r}")
+        if kind != "stop":  # from here on a drive out of Operation enabled is a fault again
+            self._stopping[k] = False
         frames: list[RawFrame] = []
-        with self._lock:
-            for _, pdo_map in self.rpdos[k]:
-                for var in pdo_map.map:
-                    if var.index in values:
-                        var.raw = values[var.index]
-                frames.append((pdo_map.cob_id, bytes(pdo_map.data)))
+        for _, pdo_map in self.rpdos[k]:  # canopen's PDO maps encode the RPDOs
+            for var in pdo_map.map:
+                if (var.index, var.subindex) in values:
+                    var.raw = values[(var.index, var.subindex)]
+            frames.append((pdo_map.cob_id, bytes(pdo_map.data)))
         if k == 0:  # the host's heartbeat, fed by commands only: a hung host goes silent
             frames.append((0x700 + drive.host_node_id, bytes([OPERATIONAL])))
         return frames
@@ -308,7 +307,6 @@ class Cia402Protocol(BoardProtocol):
                 f"({sm.error_bits(register)})")
 
     def _status(self, k: int, pdo_map, data: bytes) -> Update:
-        od = self.nodes[k].object_dictionary
         values = {}
         for var in pdo_map.map:
             if not var.length:  # canopen's filler for a fixed-length mapping array
@@ -320,16 +318,16 @@ class Cia402Protocol(BoardProtocol):
         for name, ref in (("tension_n", drive.tension_actual),
                           ("position_m", drive.position_actual),
                           ("temperature_c", drive.temperature)):
-            if ref is not None and (ref.index, ref.subindex) in values:
-                fields[name] = values[(ref.index, ref.subindex)] / ref.per_si
+            if ref is not None and ref.key in values:
+                fields[name] = values[ref.key] / ref.per_si
         if (0x6041, 0) not in values:
             return Update(self.indices[k], **fields)
         word = values[(0x6041, 0)]
         self.statusword[k], self.state[k] = word, sm.state_name(word)
-        stop, faults, note = self._judge(k, word, od)
+        stop, faults, note = self._judge(k, word)
         return Update(self.indices[k], faults=faults, stop=stop, note=note, **fields)
 
-    def _judge(self, k: int, word: int, od) -> tuple[type[SafetyStop] | None, Fault, str | None]:
+    def _judge(self, k: int, word: int) -> tuple[type[SafetyStop] | None, Fault, str | None]:
         """The stop a statusword (and the heartbeat's age) calls for, if any."""
         state = self.state[k]
         said = f"drive reports '{state}' (statusword 0x{word:04X}){self._emcy_text(k)}"

@@ -50,6 +50,10 @@ class ObjectRef:
     subindex: int
     per_si: float = 1.0
 
+    @property
+    def key(self) -> tuple[int, int]:
+        return self.index, self.subindex
+
     def __str__(self) -> str:
         return f"0x{self.index:04X}:{self.subindex:02X}"
 
