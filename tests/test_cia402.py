@@ -320,3 +320,20 @@ def test_simulated_drive_follows_the_standards_transitions(start, words, end, st
         board.node.sdo[0x6040].raw = word  # as an SDO download from a host would write it
     assert board.state == end
     assert board.node.sdo[0x6041].raw & 0x6F == statusword
+
+
+@pytest.mark.parametrize("option, end", [(2, "Switch on disabled"), (6, "Operation enabled")])
+def test_simulated_quick_stop_ends_as_its_option_code_says(option, end):
+    from types import SimpleNamespace
+
+    from pimbs_hw.mock.cia402_drive import Cia402Board
+
+    board = Cia402Board(SimpleNamespace(name="m0", board_id=5, f_floor=10.0),
+                        load_drive_file(HERE / "foc-mc.cia402.yaml"), 0.0)
+    board.node.sdo[0x605A].raw = option
+    board.state = "Operation enabled"
+    board.node.sdo[0x6040].raw = QUICK_STOP  # 11
+    reading = SimpleNamespace(position_m=0.0, tension_n=0.0, temperature_c=25.0)
+    board.supervise(0.0, reading)  # 0x605A 1-4: the drive ends the quick stop itself (12)
+    board.node.sdo[0x6040].raw = ENABLE_OPERATION  # 16 where 0x605A is 5-8
+    assert board.state == end

@@ -186,6 +186,9 @@ class Cia402Board:
         if self.state == "Fault reaction active" or cw & 0x80:
             return
         nxt = TRANSITIONS.get((self.state, command_of(cw)))
+        if (self.state, command_of(cw)) == ("Quick stop active", "enable operation") and (
+                self._quick_stop_option() in (5, 6, 7, 8)):
+            nxt = "Operation enabled"  # 16: only drives that stay in quick stop (0x605A 5-8)
         if nxt is not None:
             self._enter(nxt)
 
