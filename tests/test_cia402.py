@@ -337,3 +337,27 @@ def test_simulated_quick_stop_ends_as_its_option_code_says(option, end):
     board.supervise(0.0, reading)  # 0x605A 1-4: the drive ends the quick stop itself (12)
     board.node.sdo[0x6040].raw = ENABLE_OPERATION  # 16 where 0x605A is 5-8
     assert board.state == end
+
+
+def test_a_drive_that_does_not_take_the_commanded_mode_is_named():
+    # decoding only: the drive's TPDO2 (mode display 0x6061, torque actual) as it would
+    # answer a length command while staying in cyclic synchronous torque (mode 10)
+    proto = load_robot_protocol(ROBOT)
+    proto._enabled[0], proto._patience_s = True, 0.1  # 10 PDO periods of 10 ms
+    proto.command(0, "length", 0.01)
+    tpdo2 = next(m for n, m in proto.tpdos[0] if n == 2)
+    frame = bytes([10]) + (200).to_bytes(2, "little", signed=True)
+    updates = [proto.decode(tpdo2.cob_id, frame)[0] for _ in range(11)]
+    assert all(u.stop is None for u in updates[:10]) and updates[0].tension_n == 20.0
+    assert updates[10].stop is BoardFault
+    assert updates[10].note == ("drive did not take mode of operation 8 (cyclic synchronous "
+                               "position): 0x6061 still reports 10 (cyclic synchronous torque) "
+                               "after 11 PDOs")
+    frame = bytes([8]) + (200).to_bytes(2, "little", signed=True)
+    assert proto.decode(tpdo2.cob_id, frame)[0].stop is None  # it switched: all is well
+
+
+def load_robot_protocol(path):
+    from pimbs_hw.protocol.profiles import protocols_for
+
+    return protocols_for(load_robot(path))[0]

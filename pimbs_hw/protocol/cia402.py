@@ -121,6 +121,9 @@ class Cia402Protocol(BoardProtocol):
         self._stopping = [False] * n  # a quick stop was commanded
         self._operational = [False] * n  # a heartbeat has said OPERATIONAL since connect
         self._patience_s = 0.0  # the host watchdog time, from ``connect``
+        self.mode_display: list[int | None] = [None] * n  # 0x6061 as last reported
+        self._mode_cmd: list[int | None] = [None] * n  # the mode last commanded by PDO
+        self._mode_late = [0] * n  # PDOs since then that still report another mode
 
     # -- connect ---------------------------------------------------------------------------
     def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
@@ -265,6 +268,8 @@ class Cia402Protocol(BoardProtocol):
             raise ValueError(f"unknown command kind {kind!r}")
         if kind != "stop":  # from here on a drive out of Operation enabled is a fault again
             self._stopping[k] = False
+        if (0x6060, 0) in values and values[(0x6060, 0)] != self._mode_cmd[k]:
+            self._mode_cmd[k], self._mode_late[k] = values[(0x6060, 0)], 0
         frames: list[RawFrame] = []
         for _, pdo_map in self.rpdos[k]:  # canopen's PDO maps encode the RPDOs
             for var in pdo_map.map:
@@ -320,12 +325,31 @@ class Cia402Protocol(BoardProtocol):
                           ("temperature_c", drive.temperature)):
             if ref is not None and ref.key in values:
                 fields[name] = values[ref.key] / ref.per_si
+        if (0x6061, 0) in values:
+            self.mode_display[k] = values[(0x6061, 0)]
+            wrong = self._mode_wrong(k)
+            if wrong is not None:
+                return Update(self.indices[k], stop=BoardFault, note=wrong, **fields)
         if (0x6041, 0) not in values:
             return Update(self.indices[k], **fields)
         word = values[(0x6041, 0)]
         self.statusword[k], self.state[k] = word, sm.state_name(word)
         stop, faults, note = self._judge(k, word)
         return Update(self.indices[k], faults=faults, stop=stop, note=note, **fields)
+
+    def _mode_wrong(self, k: int) -> str | None:
+        """A drive that does not take the commanded mode of operation (0x6061 is the mode
+        it runs): what it says, once it has had the host's silence limit to switch."""
+        if self._mode_cmd[k] is None or self.mode_display[k] == self._mode_cmd[k]:
+            self._mode_late[k] = 0
+            return None
+        self._mode_late[k] += 1
+        if self._mode_late[k] <= math.ceil(max(self._patience_s, 0.1) / self.status_period_s):
+            return None
+        want, have = self._mode_cmd[k], self.mode_display[k]
+        return (f"drive did not take mode of operation {want} ({sm.MODES.get(want, '?')}): "
+                f"0x6061 still reports {have} ({sm.MODES.get(have, 'other')}) after "
+                f"{self._mode_late[k]} PDOs")
 
     def _judge(self, k: int, word: int) -> tuple[type[SafetyStop] | None, Fault, str | None]:
         """The stop a statusword (and the heartbeat's age) calls for, if any."""
