@@ -8,9 +8,10 @@ Everything safety needs (watchdog feeding, ceilings, derate, relax on exit, sile
 and stale-data detection) stays above the seam and works for every protocol; what a
 protocol cannot do is declared in ``Capabilities`` and covered on the host.
 
-Implementations: ``pimbs_v1.PimbsV1`` (the PIMBS board of PROTOCOL.md) and
+Implementations: ``pimbs_v1.PimbsV1`` (the PIMBS board of PROTOCOL.md),
 ``profile.ProfileProtocol`` (any CAN board described by its ``.dbc`` and a mapping file,
-e.g. the shipped ODrive CANSimple profile).
+e.g. the shipped ODrive CANSimple profile) and ``cia402.Cia402Protocol`` (CiA 402 servo
+drives over CANopen, configured by request and answer in ``connect``, from their EDS).
 """
 
 from __future__ import annotations
