@@ -15,8 +15,7 @@ every board it can reach; later commands raise the same stop again.
 The driver speaks to the boards only through the ``BoardProtocol`` seam
 (``pimbs_hw.protocol.board``): per muscle, the protocol its description names (PIMBS v1 by
 default, a CAN profile from a ``.dbc`` and a mapping, or CiA 402 drives from their EDS).
-Safety lives here, above the seam,
-the same for every protocol.
+Safety lives here, above the seam, the same for every protocol.
 """
 
 from __future__ import annotations
