@@ -1,6 +1,8 @@
 """`pimbs scan`: which boards answer on a port — protocol, firmware, temperature, faults, load.
 
-Only listens (sends nothing), so it is safe next to a running arm. For the simulated ports
+Only listens (sends nothing), so it is safe next to a running arm; with `--canopen` (on by
+itself for a robot with CiA 402 drives) it also asks every CANopen node for its identity and
+state, by SDO reads only. For the simulated ports
 (`virtual`, `pty`, `slcan-pty`) it starts the simulated boards of `--robot` first.
 """
 
@@ -20,8 +22,12 @@ from pimbs_cli.common import robot_option, user_errors
               show_default=True, help="how long to listen")
 @click.option("--bitrate", type=click.IntRange(min=10_000), default=1_000_000,
               show_default=True, help="bit/s of the bus, for the load figure")
+@click.option("--canopen", "canopen_nodes", is_flag=True,
+              help="also list CANopen nodes: identity (0x1018) and CiA 402 state, by SDO "
+                   "reads (on by itself when --robot has CiA 402 drives)")
 @user_errors
-def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
+def command(port: str, robot: str | None, seconds: float, bitrate: int,
+            canopen_nodes: bool) -> None:
     """List every board heard on PORT, with its protocol, firmware, temperature and faults."""
     import contextlib
 
@@ -48,13 +54,24 @@ def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
                 kwargs["sleep_after_open"] = 0
         transport = stack.enter_context(open_transport(port, **kwargs))
         result = scan_bus(transport, seconds, description)
+        nodes = None
+        if canopen_nodes or _has_cia402(description):
+            from pimbs_hw.canopen_scan import scan_canopen
+
+            nodes = scan_canopen(transport, min(seconds, 0.5))
     boards = sorted(result.boards.values(), key=lambda b: (b.board_id, b.protocol))
     click.echo(f"port {result.port}: {len(boards)} board(s) in {seconds:g} s, "
                f"{result.frames} frames ({result.joint_frames} from joint encoders, "
                f"{result.unknown_frames} not understood), bus load "
                f"{100 * result.bus_load(bitrate):.1f} % of {bitrate / 1e6:g} Mbit/s")
+    if nodes is not None:
+        click.echo(f"{len(nodes)} CANopen node(s) answered an SDO read of 0x1000 (device type)")
+        for node in nodes:
+            click.echo(node.line())
     if not boards:
-        click.echo("no board answered: is the arm powered, the port right (and the bitrate)?")
+        if not nodes:
+            click.echo("no board answered: is the arm powered, the port right (and the "
+                       "bitrate)?")
         return
     click.echo(f"{'board':>5}  {'protocol':<18} {'muscle':<7} {'firmware':<9} {'temp °C':>7}  "
                f"{'frames/s':>8}  faults")
@@ -64,3 +81,10 @@ def command(port: str, robot: str | None, seconds: float, bitrate: int) -> None:
         click.echo(f"{b.board_id:>5}  {b.protocol:<18} {b.muscle or '-':<7} "
                    f"{b.version or '-':<9} {temp:>7}  {b.frames / seconds:>8.0f}  "
                    f"{fault_names(b.faults)}{bad}")
+
+
+def _has_cia402(description) -> bool:
+    from pimbs_hw.protocol.profiles import is_cia402, muscle_protocol
+
+    return description is not None and any(is_cia402(muscle_protocol(m))
+                                           for m in description.muscles)

@@ -14,8 +14,8 @@ every board it can reach; later commands raise the same stop again.
 
 The driver speaks to the boards only through the ``BoardProtocol`` seam
 (``pimbs_hw.protocol.board``): per muscle, the protocol its description names (PIMBS v1 by
-default, or a CAN profile from a ``.dbc`` and a mapping). Safety lives here, above the seam,
-the same for every protocol.
+default, a CAN profile from a ``.dbc`` and a mapping, or CiA 402 drives from their EDS).
+Safety lives here, above the seam, the same for every protocol.
 """
 
 from __future__ import annotations
@@ -88,6 +88,7 @@ class _Rx:
         self.version: str | None = None
         self.state: int | None = None  # the board's own state, as last reported
         self.error_code: int | None = None  # its raw error word, as last reported
+        self.stop: tuple[type[SafetyStop], str] | None = None  # named by the protocol
         self.period_s, self.counted = period_s, counted
         self.gaps: collections.deque[tuple[float, int]] = collections.deque()  # (time, lost)
         self.lost = 0  # sum of the gaps in ``gaps``
@@ -122,6 +123,8 @@ class _Rx:
             self.state = u.state
         if u.error_code is not None:
             self.error_code = u.error_code
+        if u.stop is not None and self.stop is None:
+            self.stop = (u.stop, u.note or "")
 
     def seen(self, fields: Sequence[str] = _NEEDED) -> bool:
         return all(np.isfinite(self.times[f]) for f in fields)
@@ -237,6 +240,11 @@ class ArmDriver:
 
     def _configure(self, timeout_s: float) -> None:
         """Send limits, wait for every board to answer configured, then relax (safe start)."""
+        for proto in self.protocols:
+            try:
+                proto.connect(self.transport, [self._board_limits(i) for i in proto.indices])
+            except SafetyStop as stop:
+                self._trip(stop)
         setup = [frame for i, p in enumerate(self._proto)
                  for frame in p.setup(i, self._board_limits(i))]  # type: ignore[union-attr]
         deadline = time.monotonic() + timeout_s
@@ -328,6 +336,8 @@ class ArmDriver:
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
                                          f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
                                          **where))
+            if rx.stop is not None:
+                self._trip(rx.stop[0](rx.stop[1], **where))
             found = fault_stop(rx.faults)
             proto = self._proto[i]
             if proto.has_state and (found or not proto.armed(rx.state)):  # type: ignore
@@ -492,10 +502,11 @@ class ArmDriver:
                 stop.end_state = "; ".join(p.unreachable(self.limits.watchdog_s)
                                            for p in self.protocols if p.indices)
             else:
-                stop.end_state = self._rearm_report()
+                stop.end_state = self._rearm_report(
+                    [note for p in self.protocols for note in p.not_relaxed()])
         raise stop
 
-    def _rearm_report(self) -> str:
+    def _rearm_report(self, not_relaxed: list[str]) -> str:
         """After the relax: re-arm every board whose state machine left its armed state
         (ODrive: an axis in IDLE has its motor off, and a relax does not reach it), confirm
         by its own report, and say truthfully which boards stayed disarmed."""
@@ -504,7 +515,8 @@ class ArmDriver:
         # as long as the host waits for any late frame: 1 s on a bus, more in simulation
         idle = self._rearm(down, max(1.0, 2 * self.limits.silent_after_s)) if down else []
         rearmed = [self.muscles[i] for i in down if i not in idle]
-        text = "relaxed: every board at its holding floor"
+        text = ("relaxed: every board at its holding floor" if not not_relaxed else
+                "relaxed where the boards took it; " + "; ".join(not_relaxed))
         if idle:
             text = ("; ".join(f"{self.muscles[i]} (board {self.board_ids[i]}): motor off, its "
                               f"wire may be slack; after a re-arm the board still reports "

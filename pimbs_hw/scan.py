@@ -19,7 +19,7 @@ from pimbs_hw.protocol.busload import frame_bits
 from pimbs_hw.protocol.codec import MAX_BOARDS, Fault
 from pimbs_hw.protocol.pimbs_v1 import PimbsV1
 from pimbs_hw.protocol.profile import ProfileError, load_profile
-from pimbs_hw.protocol.profiles import SHIPPED, muscle_protocol, profile_path
+from pimbs_hw.protocol.profiles import SHIPPED, is_cia402, muscle_protocol, profile_path
 from pimbs_hw.transport.base import Transport
 
 
@@ -66,7 +66,8 @@ def scan_protocols(robot=None) -> list[tuple[BoardProtocol, dict[int, str]]]:
     for spec in (robot.muscles if robot is not None else ()):
         proto = muscle_protocol(spec)
         names.setdefault(proto, {})[spec.board_id] = spec.name
-        if proto != "pimbs-v1" and proto not in profiles:
+        if proto != "pimbs-v1" and proto not in profiles and not is_cia402(proto):  # CANopen
+            # nodes are asked, not overheard: ``canopen_scan``
             profiles.append(proto)
     out: list[tuple[BoardProtocol, dict[int, str]]] = [
         (PimbsV1(range(MAX_BOARDS), boards, n_joints=MAX_BOARDS), names.get("pimbs-v1", {}))]

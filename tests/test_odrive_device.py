@@ -167,7 +167,7 @@ def test_watchdog_trip_reports_idle_then_rearms_and_confirms(bus):
 
 def test_fault_that_persists_is_reported_idle_with_the_devices_words():
     with open_arm("virtual", ODRIVE_ROBOT, speed=10.0, limits=LIMITS,
-                  faults=["drv-fault:m1@1"]) as (driver, mock):
+                  faults=["drive-fault:m1@1"]) as (driver, mock):
         with pytest.raises(BoardFault) as err:
             for sample in range(20):
                 mock.set_sample(sample)
@@ -214,7 +214,7 @@ def test_simulated_axis_follows_odrives_state_machine():
     r = SiReading(0.0, 10.0, 25.0)
     axis = _axis()
     assert _heartbeat(axis, r)["Axis_State"] == AxisState.IDLE
-    axis.inject("drv-fault")
+    axis.inject("drive-fault")
     _send(axis, "Set_Axis_State", 0.1, r, Axis_Requested_State=8)
     assert axis.state == AxisState.IDLE  # refused while an error is latched
     _send(axis, "Clear_Errors", 0.2, r, Identify=0)
@@ -347,7 +347,7 @@ def test_an_axis_that_will_not_arm_is_refused_before_any_command(bus):
     port, sniff = bus
     with pytest.raises(BoardFault) as err:
         with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=LIMITS, connect_timeout_s=1.0,
-                      faults=["drv-fault:m1"]):
+                      faults=["drive-fault:m1"]):
             pass
     assert err.value.detail.startswith("not armed within 1.0 s: m1 (board 2, profile "
                                      "odrive-cansimple, reports Axis_State IDLE (1), "

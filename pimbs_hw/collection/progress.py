@@ -16,6 +16,7 @@ from rich.table import Table
 from rich.text import Text
 
 from pimbs_hw.collection.routine import Summary
+from pimbs_hw.collection.temperature import hottest
 
 WARN_C = 55.0  # °C shown in red: the driver starts derating tension ceilings at 60 °C
 
@@ -68,7 +69,7 @@ class LiveReporter:
         lo, hi = s.tension_range
         hot = s.temperature_max
         grid.add_row("tension", f"{lo:.1f} … {hi:.1f} N" if s.written else "–",
-                     Text(f"max temperature {hot:.1f} °C" if s.written else "",
+                     Text(f"max temperature {hottest(hot)}" if s.written else "",
                           style="red" if hot >= WARN_C else ""))
         if self._last is not None:
             r = self._last
@@ -122,7 +123,7 @@ class LogReporter:
             parts.append(f"ETA {_duration(s.eta)}")
         if s.written:
             lo, hi = s.tension_range
-            parts.append(f"tension {lo:.1f}…{hi:.1f} N, max {s.temperature_max:.1f} °C")
+            parts.append(f"tension {lo:.1f}…{hi:.1f} N, max {hottest(s.temperature_max)}")
         parts.append(f"{len(s.warnings)} warnings, {s.unsettled} unsettled, "
                      f"{len(s.skipped)} skipped")
         self.console.print(", ".join(parts), markup=False, highlight=False, soft_wrap=True)
@@ -138,7 +139,8 @@ def summary_lines(s: Summary) -> list[str]:
              f"settling {s.settle_time / max(s.written, 1):.2f} s per sample"]
     if s.written:
         lo, hi = s.tension_range
-        lines.append(f"  tension {lo:.1f} … {hi:.1f} N, max temperature {s.temperature_max:.1f} °C")
+        lines.append(f"  tension {lo:.1f} … {hi:.1f} N, max temperature "
+                     f"{hottest(s.temperature_max)}")
     if s.unsettled or s.skipped or s.warnings:
         lines.append(f"  {s.unsettled} unsettled (flagged settled=false), "
                      f"{len(s.skipped)} skipped {s.skipped or ''}, {len(s.warnings)} warnings")

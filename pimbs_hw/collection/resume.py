@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from pimbs_arm.model import ArmModel
+from pimbs_hw.collection.temperature import temperature_note
 from pimbs_recording.format import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
@@ -29,7 +30,7 @@ def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,
                      generator="pimbs collect",
                      theta_source="joint_encoders" if model.robot.joint_encoders else "model",
                      settle=dict(settle), move=dict(move), joint_range=model.joint_range.tolist(),
-                     K=model.K.tolist())
+                     K=model.K.tolist(), temperature=temperature_note(model.robot))
 
 
 class ResumeError(ValueError):

@@ -28,6 +28,7 @@ from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
 from pimbs_hw.collection.plan import CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
+from pimbs_hw.collection.temperature import filled
 from pimbs_recording.format import RecordingWriter
 
 # m: how far short of the overshoot the final approach may start; its last motion is then still
@@ -158,7 +159,7 @@ class Collector:
         theta = self._theta(r, theta_command)
         return {"sample": i, "time": np.datetime64(self.now().replace(tzinfo=None), "us"),
                 "theta": theta, "theta_command": theta_command, "tension": r.tension,
-                "length": r.length, "temperature": r.temperature,
+                "length": r.length, "temperature": filled(r.temperature),
                 "approach": self.link.approach,
                 "tau_gravity": self.model.gravity_torque(theta),
                 # extra columns: how the sample settled (data quality, kept by all tools)
@@ -208,7 +209,9 @@ class Collector:
         lo, hi = s.tension_range
         s.tension_range = (min(lo, float(row["tension"].min())),
                            max(hi, float(row["tension"].max())))
-        s.temperature_max = max(s.temperature_max, float(row["temperature"].max()))
+        measured = held.reading.temperature[np.isfinite(held.reading.temperature)]
+        if measured.size:  # the fill of boards that report none is no measurement
+            s.temperature_max = max(s.temperature_max, float(measured.max()))
         if not held.settled:
             s.unsettled += 1
             self._warn(f"sample {i} did not settle within {self.settle.timeout:g} s "

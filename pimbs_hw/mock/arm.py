@@ -119,6 +119,10 @@ class MockArm:
         if len({spec.board_id for spec in self.robot.muscles}) != m:
             raise ValueError(f"{self.robot.name}: board ids must be unique")
         self._by_frame = {fid: i for i, b in enumerate(self.boards) for fid in b.frame_ids}
+        self._broadcast: dict[int, list[int]] = {}  # ids every board of a kind hears (NMT)
+        for i, b in enumerate(self.boards):
+            for fid in getattr(b, "broadcast_ids", ()):
+                self._broadcast.setdefault(fid, []).append(i)
         self._home = False
         self._sent: dict[int, int] = {}  # frames sent per id (drop-frames keeps every 4th)
         try:
@@ -140,7 +144,7 @@ class MockArm:
         self._readings = self._read_all(self.plant.state)
 
     def _board(self, spec, now: float, winding: int):
-        from pimbs_hw.protocol.profiles import muscle_protocol, profile_path
+        from pimbs_hw.protocol.profiles import is_cia402, muscle_protocol, profile_path
 
         name = muscle_protocol(spec)
         if name == "pimbs-v1":
@@ -148,6 +152,11 @@ class MockArm:
                 raise ValueError(f"muscle {spec.name}: board_id {spec.board_id} is outside "
                                  f"0..{MAX_BOARDS - 1}")
             return V1Board(spec, now, self.status_period_s, winding)
+        if is_cia402(name):
+            from pimbs_hw.mock.cia402_drive import Cia402Board
+            from pimbs_hw.protocol.cia402_config import load_drive_file
+
+            return Cia402Board(spec, load_drive_file(name), now)
         from pimbs_hw.protocol.profile import load_profile
 
         profile = load_profile(profile_path(name))
@@ -246,9 +255,15 @@ class MockArm:
         if self._bus_off:
             return
         i = self._by_frame.get(frame.arbitration_id)
-        if i is None:
-            return
         now = time.monotonic()
+        if i is None:
+            for j in self._broadcast.get(frame.arbitration_id, ()):
+                with self._lock:
+                    reply = self.boards[j].receive(frame.arbitration_id, frame.data, now,
+                                                   self._readings[j])
+                if reply:
+                    self._send_status(j, now, reply=True)
+            return
         with self._lock:
             reply = self.boards[i].receive(frame.arbitration_id, frame.data, now,
                                            self._readings[i])
@@ -310,14 +325,17 @@ class MockArm:
                                                          self._cycles):
                 self._active.add(spec)
                 log.info("mock arm: fault %s active", spec)
-                if spec.kind == "drv-fault":
+                if spec.kind == "drive-fault":  # latched by the board (edge)
                     with self._lock:
                         for board in self.boards:
-                            if spec.hits(board.spec.name):
+                            if spec.hits(board.spec.name) and hasattr(board, "inject"):
                                 board.inject(spec.kind)
                 if spec.kind == "bus-off" and not self._bus_off:
                     self.transport.send_error(CAN_ERR_BUSOFF)
                     self._bus_off = True
+        for board in self.boards:  # boards that follow the active set (level)
+            if hasattr(board, "set_faults"):
+                board.set_faults({f.kind for f in self._active if f.hits(board.spec.name)})
         self.plant.heat_rate_c_per_s[:] = [
             OVERHEAT_RATE_C_PER_S if self._fault_on("overheat", name) else 0.0
             for name in self.muscles]

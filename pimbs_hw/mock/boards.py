@@ -90,8 +90,8 @@ class V1Board:
         return mode, value * self.winding if mode == "length" else value
 
     def inject(self, kind: str) -> None:
-        """Fault injection: ``drv-fault`` = the motor driver faults (latched, relaxed)."""
-        if kind == "drv-fault":
+        """Fault injection: ``drive-fault`` = the motor driver faults (latched, relaxed)."""
+        if kind == "drive-fault":
             self.sim.latched |= Fault.MOTOR
             self.sim.mode = "relax"
     def frames(self, now: float, reading: SiReading, reply: bool = False) -> list[RawFrame]:
@@ -182,8 +182,8 @@ class ProfileBoard:
         return "tension", self.target
 
     def inject(self, kind: str) -> None:
-        """Fault injection: ``drv-fault`` = the motor driver faults (reported, relaxed)."""
-        if kind == "drv-fault":
+        """Fault injection: ``drive-fault`` = the motor driver faults (reported, relaxed)."""
+        if kind == "drive-fault":
             self.faults |= Fault.MOTOR
             self.mode, self.target = "relax", self.relax_n
 

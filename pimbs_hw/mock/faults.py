@@ -1,8 +1,9 @@
 """Fault injection for the simulated boards: ``--fault KIND[:MUSCLE][@TRIGGER]``.
 
 KIND      silent-board, drop-frames, corrupt-frames, overheat, saturate-loadcell, bus-off,
-          drv-fault (the motor driver faults and stays faulted: an ODrive axis disarms to
-          IDLE with DRV_FAULT and cannot be re-armed; a PIMBS board reports a motor fault)
+          drive-fault (the motor driver faults and stays faulted: an ODrive axis disarms to
+          IDLE with DRV_FAULT and cannot be re-armed; a PIMBS board reports a motor fault; a
+          CiA 402 drive enters Fault), lost-heartbeat (CiA 402 drives: the heartbeat stops)
 MUSCLE    muscle name (``m2``); omit or ``*`` for bus-wide kinds (bus-off) or every muscle
 TRIGGER   ``12``  sample index of the collection (``MockArm.set_sample``)
           ``2.5s`` seconds after the mock started
@@ -17,7 +18,7 @@ import re
 from dataclasses import dataclass
 
 KINDS = ("silent-board", "drop-frames", "corrupt-frames", "overheat", "saturate-loadcell",
-         "bus-off", "drv-fault")
+         "bus-off", "drive-fault", "lost-heartbeat")
 _SPEC = re.compile(r"^(?P<kind>[a-z-]+)(?::(?P<muscle>[^@]+))?(?:@(?P<trigger>[0-9.]+[sc]?))?$")
 
 

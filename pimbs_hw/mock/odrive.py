@@ -150,8 +150,8 @@ class ODriveAxis:
         self.state = IDLE
 
     def inject(self, kind: str) -> None:
-        """Fault injection: ``drv-fault`` = the gate driver faults and stays faulted."""
-        if kind == "drv-fault":
+        """Fault injection: ``drive-fault`` = the gate driver faults and stays faulted."""
+        if kind == "drive-fault":
             self.persistent |= DRV_FAULT
             self.active |= DRV_FAULT
             self._disarm(DRV_FAULT)

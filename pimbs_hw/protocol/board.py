@@ -8,9 +8,10 @@ Everything safety needs (watchdog feeding, ceilings, derate, relax on exit, sile
 and stale-data detection) stays above the seam and works for every protocol; what a
 protocol cannot do is declared in ``Capabilities`` and covered on the host.
 
-Implementations: ``pimbs_v1.PimbsV1`` (the PIMBS board of PROTOCOL.md) and
+Implementations: ``pimbs_v1.PimbsV1`` (the PIMBS board of PROTOCOL.md),
 ``profile.ProfileProtocol`` (any CAN board described by its ``.dbc`` and a mapping file,
-e.g. the shipped ODrive CANSimple profile).
+e.g. the shipped ODrive CANSimple profile) and ``cia402.Cia402Protocol`` (CiA 402 servo
+drives over CANopen, configured by request and answer in ``connect``, from their EDS).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from pimbs_hw.protocol.codec import Fault
+from pimbs_hw.safety import SafetyStop
 
 COMMAND_KINDS = ("length", "tension", "relax", "stop")
 RawFrame = tuple[int, bytes]
@@ -83,6 +85,10 @@ class Update:
     angle_rad: float | None = None
     state: int | None = None  # the board's own state (boards with a state machine)
     error_code: int | None = None  # the board's raw error word, as it reported it
+    # a protocol that reads its device's own state (CiA 402) names the stop it calls for
+    # and what the device reported; the driver raises it like its own limit stops
+    stop: type[SafetyStop] | None = None
+    note: str | None = None
 
 
 class CorruptFrame(ValueError):
@@ -103,6 +109,11 @@ class BoardProtocol(ABC):
     def __init__(self, indices: Sequence[int], board_ids: Sequence[int]) -> None:
         self.indices = tuple(indices)
         self.board_ids = tuple(board_ids)
+
+    def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
+        """Configure the boards by request and answer before the first ``setup`` round
+        (CANopen SDO); ``limits`` per muscle of ``indices``. Frame protocols need nothing."""
+        return None
 
     @abstractmethod
     def setup(self, i: int, limits: BoardLimits) -> list[RawFrame]:
@@ -151,6 +162,10 @@ class BoardProtocol(ABC):
     def state_text(self, state: int | None, error: int | None) -> str:
         """The state and error as the board reported them, by the device's own names."""
         return ""
+    def not_relaxed(self) -> list[str]:
+        """Boards that reported a state in which a relax cannot reach them (a drive in
+        Fault), each with what it reported; [] where the protocol cannot tell."""
+        return []
 
     def unreachable(self, watchdog_s: float) -> str:
         """What these boards do when the host cannot reach them any more (the end state)."""

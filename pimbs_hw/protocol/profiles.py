@@ -3,7 +3,9 @@
 A muscle's ``protocol`` (in the ``.muscles.yaml``, per muscle or under ``defaults``) is
 ``pimbs-v1`` (the default), a shipped profile name (``odrive-cansimple``), or a path to a
 lab's own profile file (``*.profile.yaml``: its ``.dbc`` plus the mapping, see
-``profile.py``). Muscles with the same profile share one protocol object.
+``profile.py``), or a path to a CiA 402 drive file (``*.cia402.yaml``: the drive's EDS and
+which objects carry what, see ``cia402_config.py``; node id = ``board_id``). Muscles with
+the same profile share one protocol object.
 """
 
 from __future__ import annotations
@@ -27,6 +29,11 @@ def profile_path(name: str) -> Path:
     return Path(name)
 
 
+def is_cia402(name: str) -> bool:
+    """Whether a ``protocol`` value names a CiA 402 drive file."""
+    return name.endswith(".cia402.yaml")
+
+
 def muscle_protocol(spec) -> str:
     return getattr(spec, "protocol", None) or V1
 
@@ -46,6 +53,11 @@ def protocols_for(robot) -> list[BoardProtocol]:
         if name == V1:
             protocols.append(PimbsV1(indices, specs, n_joints))
             n_joints = 0
+        elif is_cia402(name):
+            from pimbs_hw.protocol.cia402 import Cia402Protocol
+            from pimbs_hw.protocol.cia402_config import load_drive_file
+
+            protocols.append(Cia402Protocol(indices, specs, load_drive_file(name)))
         else:
             protocols.append(load_profile(profile_path(name)).protocol(indices, specs))
     if n_joints:  # joint encoders speak v1 JOINT frames whatever the muscle boards speak

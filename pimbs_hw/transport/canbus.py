@@ -163,6 +163,14 @@ class CanTransport(QueuedTransport):
         self._send(can.Message(arbitration_id=error_class, is_error_frame=True,
                                is_extended_id=False, dlc=0))
 
+    def add_listener(self, listener: can.Listener) -> None:
+        """Also hand every received frame to ``listener`` (in the receive thread): a
+        request/answer stack such as canopen's SDO client waits on its own answers."""
+        self._notifier.add_listener(listener)
+
+    def remove_listener(self, listener: can.Listener) -> None:
+        self._notifier.remove_listener(listener)
+
     def close(self) -> None:
         if self.closed:
             return

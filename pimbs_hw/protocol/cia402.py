@@ -1,0 +1,396 @@
+"""CiA 402 servo drives over CANopen behind the board-protocol seam, through ``canopen``.
+
+One drive per muscle, node id = the muscle's ``board_id``, described by the maker's EDS and
+a drive file (``cia402_config.py``). At connect (``connect``, over SDO with canopen's
+client): NMT pre-operational; identity (0x1018) and supported modes (0x6502) read; the
+drive's heartbeat producer (0x1017) and its consumer of the host's heartbeat (0x1016, the
+host watchdog) set; the tension ceiling written to Max torque (0x6072) where the EDS has
+it; RPDOs and TPDOs mapped (canopen ``PdoMap`` save, packed into the map sizes the EDS
+allows); the state machine walked Shutdown 0x06 -> Switch on 0x07 -> Enable operation 0x0F
+(after a Fault reset, bit 7 rising edge, if the drive reports Fault), each step waiting for
+the statusword to show the state; then NMT start.
+
+Cyclic: every command is RPDOs (controlword 0x0F, mode of operation, target) built with
+canopen's PDO maps, plus the host's heartbeat frame: a host that stops commanding stops its
+heartbeat, and the drives' heartbeat consumer acts. The drives send TPDOs on their event
+timer (statusword, mode display, actual torque, actual position, optional temperature);
+tension mode is cyclic synchronous torque (10) or, where 0x6502 says the drive lacks it,
+profile torque (4); length mode is cyclic synchronous position (8) or profile position (1).
+Relax = torque mode at the holding floor; stop = the CiA 402 quick stop (controlword 0x02).
+
+Everything the host reports is what a drive sent: the state from its statusword, the fault
+from its EMCY (code, error register 0x1001), its NMT state from its heartbeat.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from collections.abc import Sequence
+
+import canopen
+from canopen.emcy import EmcyError
+from canopen.nmt import NMT_STATES
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from pimbs_hw.protocol import cia402_states as sm
+from pimbs_hw.protocol.board import BoardLimits, BoardProtocol, Capabilities, RawFrame, Update
+from pimbs_hw.protocol.canopen_link import attached
+from pimbs_hw.protocol.cia402_config import DriveFile, DriveFileError, ObjectRef, find_object
+from pimbs_hw.protocol.codec import Fault
+from pimbs_hw.safety import BoardFault, BoardSilent, Overheat, SafetyStop, WatchdogExpired
+
+NAME = "cia402"
+SDO_TIMEOUT_S = 0.5  # per request; a drive on a loaded bus answers within milliseconds
+STATE_WAIT_S = 1.0  # per state machine step
+HEARTBEAT_MISSES = 3  # producer periods without a heartbeat = the drive is lost
+OPERATIONAL = 5  # NMT state code in a heartbeat
+_EMCY = struct.Struct("<HB5s")
+
+
+def _pdo_plan(node, pdos, refs: Sequence[ObjectRef], eds: str, what: str) -> list:
+    """Pack ``refs`` into ``pdos``'s maps in order, as many per map as the EDS allows."""
+    od, used, left = node.object_dictionary, [], list(refs)
+    for n, pdo_map in pdos.map.items():
+        if not left:
+            break
+        record = od[pdo_map.map_array.od.index] if pdo_map.map_array.od.index in od else None
+        room = len(record) - 1 if record is not None else 0
+        pdo_map.clear()
+        bits = 0
+        while left and len(pdo_map.map) < room and bits + len(find_object(od, left[0])) <= 64:
+            ref = left.pop(0)
+            pdo_map.add_variable(ref.index, ref.subindex)
+            bits += len(find_object(od, ref))
+        if pdo_map.map:
+            used.append((n, pdo_map))
+    if left:
+        raise DriveFileError(f"EDS {eds}: no room in the drive's {what}s for object "
+                             f"{left[0]} ({len(left)} of the objects do not fit in "
+                             f"{len(pdos.map)} {what}s)")
+    return used
+
+
+class Cia402Protocol(BoardProtocol):
+    """CiA 402 drives of one drive file (see the module docstring)."""
+
+    name = NAME
+
+    def __init__(self, indices: Sequence[int], specs, drive: DriveFile) -> None:
+        super().__init__(indices, [s.board_id for s in specs])
+        self.drive, self.specs = drive, list(specs)
+        self.status_period_s = drive.status_period_ms / 1000.0
+        self.capabilities = Capabilities(
+            board_watchdog=True, board_limits=False, temperature=drive.temperature is not None,
+            counter=False, checksum=False, configure=False, version=True)
+        if not all(1 <= b <= 127 for b in self.board_ids):
+            raise DriveFileError(f"{drive.path}: CANopen node ids (the muscles' board_id) "
+                                 f"must be 1..127, got {list(self.board_ids)}")
+        if drive.host_node_id in self.board_ids:
+            raise DriveFileError(f"{drive.path}: host_node_id {drive.host_node_id} is also a "
+                                 "drive's node id; pick a free one")
+        self.nodes = [canopen.RemoteNode(b, drive.object_dictionary(b)) for b in self.board_ids]
+        eds = drive.eds.name
+        out = [ObjectRef(0x6040, 0), ObjectRef(0x6060, 0), drive.tension_target]
+        out += [drive.position_target] if drive.position_target is not None else []
+        back = [ObjectRef(0x6041, 0), ObjectRef(0x6061, 0), drive.tension_actual,
+                drive.position_actual]
+        back += [drive.temperature] if drive.temperature is not None else []
+        self.rpdos = [_pdo_plan(n, n.rpdo, out, eds, "RPDO") for n in self.nodes]
+        self.tpdos = [_pdo_plan(n, n.tpdo, back, eds, "TPDO") for n in self.nodes]
+        for k, node in enumerate(self.nodes):
+            for n, pdo_map in self.rpdos[k]:
+                pdo_map.cob_id, pdo_map.trans_type = 0x100 + 0x100 * n + node.id, 255
+                pdo_map.enabled = True
+            for n, pdo_map in self.tpdos[k]:
+                pdo_map.cob_id, pdo_map.trans_type = 0x80 + 0x100 * n + node.id, 255
+                pdo_map.event_timer, pdo_map.enabled = drive.status_period_ms, True
+        self._tpdo_ids = {m.cob_id: (k, m) for k in range(len(self.nodes))
+                          for _, m in self.tpdos[k]}
+        n = len(self.nodes)
+        self.state = ["not connected"] * n  # CiA 402 state from the last statusword
+        self.statusword: list[int | None] = [None] * n
+        self.nmt_state: list[str] = ["unknown"] * n
+        self.emcy: list[tuple[int, int] | None] = [None] * n  # last (code, error register)
+        self.identity: list[tuple[int, int, int] | None] = [None] * n
+        self.tension_mode, self.position_mode = [10] * n, [8] * n
+        self.relax_n = [s.f_floor for s in self.specs]
+        self._since_heartbeat = [0] * n  # TPDOs decoded since the last heartbeat
+        self._enabled = [False] * n  # reached Operation enabled at connect
+        self._stopping = [False] * n  # a quick stop was commanded
+        self._operational = [False] * n  # a heartbeat has said OPERATIONAL since connect
+        self._patience_s = 0.0  # the host watchdog time, from ``connect``
+        self.mode_display: list[int | None] = [None] * n  # 0x6061 as last reported
+        self._mode_cmd: list[int | None] = [None] * n  # the mode last commanded by PDO
+        self._mode_late = [0] * n  # PDOs since then that still report another mode
+
+    # -- connect ---------------------------------------------------------------------------
+    def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
+        """NMT, SDO configuration, PDO mapping and the state machine walk of every drive."""
+        self._patience_s = max(lim.watchdog_s for lim in limits) if limits else 0.0
+        with attached(transport) as network:
+            for node in self.nodes:
+                network.add_node(node)
+                node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
+            for k, node in enumerate(self.nodes):
+                self._bring_up(k, node, limits[k])
+            for node in self.nodes:
+                node.nmt.send_command(0x01)  # start remote node: PDOs flow
+        self._since_heartbeat = [0] * len(self.nodes)
+
+    def _where(self, k: int) -> dict:
+        return {"muscle": self.specs[k].name, "board_id": self.board_ids[k]}
+
+    def _sdo(self, k: int, call):
+        """One SDO exchange; a silent or refusing drive is a named stop."""
+        node = self.nodes[k]
+        try:
+            return call()
+        except SdoCommunicationError as exc:
+            raise BoardSilent(f"no SDO answer from CANopen node {node.id} "
+                              f"({self.drive.eds.name}): {exc}; is the drive powered, its "
+                              "node id right and the bitrate the drive's?",
+                              **self._where(k)) from None
+        except SdoAbortedError as exc:
+            raise BoardFault(f"CANopen node {node.id} refused an SDO access "
+                             f"({self.drive.eds.name}): {exc}", **self._where(k)) from None
+
+    def _write(self, k: int, ref: ObjectRef, value: int) -> None:
+        var = self._var(k, ref.index, ref.subindex)
+        self._sdo(k, lambda: setattr(var, "raw", value))
+
+    def _read(self, k: int, index: int, subindex: int = 0) -> int:
+        var = self._var(k, index, subindex)
+        return self._sdo(k, lambda: var.raw)
+
+    def _var(self, k: int, index: int, subindex: int) -> canopen.sdo.SdoVariable:
+        obj = self.nodes[k].sdo[index]
+        return obj if isinstance(obj, canopen.sdo.SdoVariable) else obj[subindex]
+
+    def _bring_up(self, k: int, node, lim: BoardLimits) -> None:
+        od, drive = node.object_dictionary, self.drive
+        node.nmt.send_command(0x80)  # enter pre-operational: configure over SDO
+        self.identity[k] = tuple(self._read(k, 0x1018, s) for s in (1, 2, 3))  # type: ignore
+        if 0x6502 in od:
+            supported = self._read(k, 0x6502)
+            tq = sm.pick_mode(supported, (10, 4))
+            if tq is None:
+                raise DriveFileError(f"EDS {drive.eds.name}, node {node.id}: Supported drive "
+                                     f"modes 0x6502:00 = 0x{supported:X} has no torque mode "
+                                     "(cyclic synchronous torque or profile torque)")
+            self.tension_mode[k] = tq
+            self.position_mode[k] = sm.pick_mode(supported, (8, 1))  # type: ignore[call-arg]
+        self._write(k, ObjectRef(0x1017, 0), drive.heartbeat_ms)
+        if 0x1016 in od:  # the drive watches the host's heartbeat: the host watchdog
+            ms = max(1, round(lim.watchdog_s * 1000))
+            self._write(k, ObjectRef(0x1016, 1), drive.host_node_id << 16 | ms)
+        if 0x6072 in od:  # Max torque, in the same units as the target torque
+            ceiling = round(lim.tension_ceiling_n * drive.tension_target.per_si)
+            self._write(k, ObjectRef(0x6072, 0), min(ceiling, 0xFFFF))
+        for _, pdo_map in (*self.rpdos[k], *self.tpdos[k]):
+            self._sdo(k, pdo_map.save)
+        for pdos, used in ((node.rpdo, self.rpdos[k]), (node.tpdo, self.tpdos[k])):
+            taken = {n for n, _ in used}
+            for n, pdo_map in pdos.map.items():  # unused PDOs off: nothing unexpected flows
+                if n not in taken and 1 in pdo_map.com_record:
+                    cob = self._read(k, pdo_map.com_record.od.index, 1)
+                    self._write(k, ObjectRef(pdo_map.com_record.od.index, 1),
+                                cob | 0x80000000)
+        self.relax_n[k] = lim.relax_tension_n
+        self._write(k, ObjectRef(0x6060, 0), self.tension_mode[k])
+        self._write(k, drive.tension_target, self._encode(k, drive.tension_target,
+                                                          lim.relax_tension_n))
+        self._walk(k)
+
+    def _statusword(self, k: int) -> str:
+        word = self._read(k, 0x6041)
+        self.statusword[k], self.state[k] = word, sm.state_name(word)
+        return self.state[k]
+
+    def _await(self, k: int, target: str) -> None:
+        deadline = time.monotonic() + STATE_WAIT_S
+        while self._statusword(k) != target:
+            if time.monotonic() > deadline:
+                raise BoardFault(f"CANopen node {self.nodes[k].id} did not reach '{target}': "
+                                 f"it reports '{self.state[k]}' (statusword "
+                                 f"0x{self.statusword[k]:04X}){self._emcy_text(k)}",
+                                 **self._where(k))
+            time.sleep(0.005)
+
+    def _walk(self, k: int) -> None:
+        """Switch on disabled -> Ready to switch on -> Switched on -> Operation enabled."""
+        cw = ObjectRef(0x6040, 0)
+        if self._statusword(k) in sm.FAULT_STATES:
+            self._write(k, cw, 0x00)  # bit 7 low first: the reset is its rising edge
+            self._write(k, cw, sm.FAULT_RESET)
+            self._await(k, "Switch on disabled")
+        for word, state in ((sm.SHUTDOWN, "Ready to switch on"), (sm.SWITCH_ON, "Switched on"),
+                            (sm.ENABLE_OPERATION, sm.OPERATION_ENABLED)):
+            self._write(k, cw, word)
+            self._await(k, state)
+        self._enabled[k], self._stopping[k] = True, False
+
+    # -- cyclic ----------------------------------------------------------------------------
+    def _encode(self, k: int, ref: ObjectRef, value_si: float) -> int:
+        entry = find_object(self.nodes[k].object_dictionary, ref)
+        raw = round(value_si * ref.per_si)
+        try:
+            entry.encode_raw(raw)
+        except (struct.error, ValueError, OverflowError):
+            raise ValueError(f"muscle {self.specs[k].name}: {value_si:g} is out of the range "
+                             f"of object {ref} ({entry.name}) in {self.drive.eds.name}") from None
+        return raw
+
+    def setup(self, i: int, limits: BoardLimits) -> list[RawFrame]:
+        return []  # configured over SDO in ``connect``
+
+    def command(self, i: int, kind: str, value: float = 0.0) -> list[RawFrame]:
+        k = self.indices.index(i)
+        drive, values = self.drive, {(0x6040, 0): sm.ENABLE_OPERATION}
+        if kind == "stop":
+            values[(0x6040, 0)] = sm.QUICK_STOP
+            self._stopping[k] = True
+        elif kind in ("relax", "tension"):
+            values[(0x6060, 0)] = self.tension_mode[k]
+            target = self.relax_n[k] if kind == "relax" else value
+            values[drive.tension_target.key] = self._encode(k, drive.tension_target, target)
+        elif kind == "length":
+            if drive.position_target is None or self.position_mode[k] is None:
+                why = ("the drive file names no position target (0x607A)"
+                       if drive.position_target is None else
+                       "Supported drive modes 0x6502 lists no position mode")
+                raise ValueError(f"muscle {self.specs[k].name}: length control is not "
+                                 f"available on its drive ({drive.eds.name}): {why}")
+            values[(0x6060, 0)] = self.position_mode[k]
+            values[drive.position_target.key] = self._encode(k, drive.position_target, value)
+        else:
+            raise ValueError(f"unknown command kind {kind!r}")
+        if kind != "stop":  # from here on a drive out of Operation enabled is a fault again
+            self._stopping[k] = False
+        if (0x6060, 0) in values and values[(0x6060, 0)] != self._mode_cmd[k]:
+            self._mode_cmd[k], self._mode_late[k] = values[(0x6060, 0)], 0
+        frames: list[RawFrame] = []
+        for _, pdo_map in self.rpdos[k]:  # canopen's PDO maps encode the RPDOs
+            for var in pdo_map.map:
+                if (var.index, var.subindex) in values:
+                    var.raw = values[(var.index, var.subindex)]
+            frames.append((pdo_map.cob_id, bytes(pdo_map.data)))
+        if k == 0:  # the host's heartbeat, fed by commands only: a hung host goes silent
+            frames.append((0x700 + drive.host_node_id, bytes([OPERATIONAL])))
+        return frames
+
+    def decode(self, arbitration_id: int, data: bytes) -> list[Update]:
+        hit = self._tpdo_ids.get(arbitration_id)
+        if hit is not None:
+            return [self._status(hit[0], hit[1], data)]
+        node_id, function = arbitration_id & 0x7F, arbitration_id & 0x780
+        if node_id not in self.board_ids or function not in (0x700, 0x080) or not data:
+            return []
+        k = self.board_ids.index(node_id)
+        if function == 0x700:  # heartbeat: the drive's NMT state
+            self._since_heartbeat[k] = 0
+            self.nmt_state[k] = NMT_STATES.get(data[0] & 0x7F, f"0x{data[0]:02X}")
+            if data[0] & 0x7F == OPERATIONAL:
+                self._operational[k] = True
+            elif self._operational[k]:  # (heartbeats from before NMT start do not count)
+                return [Update(self.indices[k], stop=BoardFault, note=(
+                    f"drive left NMT OPERATIONAL: its heartbeat says {self.nmt_state[k]}"
+                    + (" (it rebooted)" if data[0] == 0 else "")))]
+            return []
+        if len(data) == 8:  # EMCY: code, error register, manufacturer bytes
+            code, register, _ = _EMCY.unpack(data)
+            self.emcy[k] = (code, register)
+        return []
+
+    def _emcy_text(self, k: int) -> str:
+        if self.emcy[k] is None:
+            return "; no EMCY received"
+        code, register = self.emcy[k]  # type: ignore[misc]
+        desc = EmcyError(code, register, b"", 0.0).get_desc()
+        return (f"; EMCY 0x{code:04X} ({desc}), error register 0x{register:02X} "
+                f"({sm.error_bits(register)})")
+
+    def _status(self, k: int, pdo_map, data: bytes) -> Update:
+        values = {}
+        for var in pdo_map.map:
+            if not var.length:  # canopen's filler for a fixed-length mapping array
+                continue
+            start = var.offset // 8
+            values[(var.index, var.subindex)] = var.od.decode_raw(
+                bytes(data[start:start + var.length // 8]))
+        drive, fields = self.drive, {}
+        for name, ref in (("tension_n", drive.tension_actual),
+                          ("position_m", drive.position_actual),
+                          ("temperature_c", drive.temperature)):
+            if ref is not None and ref.key in values:
+                fields[name] = values[ref.key] / ref.per_si
+        if (0x6061, 0) in values:
+            self.mode_display[k] = values[(0x6061, 0)]
+            wrong = self._mode_wrong(k)
+            if wrong is not None:
+                return Update(self.indices[k], stop=BoardFault, note=wrong, **fields)
+        if (0x6041, 0) not in values:
+            return Update(self.indices[k], **fields)
+        word = values[(0x6041, 0)]
+        self.statusword[k], self.state[k] = word, sm.state_name(word)
+        stop, faults, note = self._judge(k, word)
+        return Update(self.indices[k], faults=faults, stop=stop, note=note, **fields)
+
+    def _mode_wrong(self, k: int) -> str | None:
+        """A drive that does not take the commanded mode of operation (0x6061 is the mode
+        it runs): what it says, once it has had the host's silence limit to switch."""
+        if self._mode_cmd[k] is None or self.mode_display[k] == self._mode_cmd[k]:
+            self._mode_late[k] = 0
+            return None
+        self._mode_late[k] += 1
+        if self._mode_late[k] <= math.ceil(max(self._patience_s, 0.1) / self.status_period_s):
+            return None
+        want, have = self._mode_cmd[k], self.mode_display[k]
+        return (f"drive did not take mode of operation {want} ({sm.MODES.get(want, '?')}): "
+                f"0x6061 still reports {have} ({sm.MODES.get(have, 'other')}) after "
+                f"{self._mode_late[k]} PDOs")
+
+    def _judge(self, k: int, word: int) -> tuple[type[SafetyStop] | None, Fault, str | None]:
+        """The stop a statusword (and the heartbeat's age) calls for, if any."""
+        state = self.state[k]
+        said = f"drive reports '{state}' (statusword 0x{word:04X}){self._emcy_text(k)}"
+        if state in sm.FAULT_STATES:
+            code = self.emcy[k][0] if self.emcy[k] else 0
+            if code & 0xF000 == 0x4000:
+                return Overheat, Fault.OVERHEAT, said
+            if code & 0xFF00 == 0x8100:
+                return WatchdogExpired, Fault.WATCHDOG, said
+            return BoardFault, Fault.MOTOR, said
+        if self._enabled[k] and state != sm.OPERATION_ENABLED and not (
+                self._stopping[k] and state in ("Quick stop active", "Switch on disabled")):
+            return BoardFault, Fault.MOTOR, f"drive left 'Operation enabled': {said}"
+        # counted in frames, not seconds: a host that reads its queue late (loaded, or
+        # hung for a moment) sees heartbeats and PDOs in the order the drive sent them
+        self._since_heartbeat[k] += 1
+        limit_s = max(HEARTBEAT_MISSES * self.drive.heartbeat_ms / 1000.0, self._patience_s)
+        frames = len(self.tpdos[k]) * math.ceil(limit_s / self.status_period_s)
+        if self._enabled[k] and self._since_heartbeat[k] > frames:
+            return BoardSilent, Fault(0), (
+                f"no heartbeat from CANopen node {self.nodes[k].id} over its last "
+                f"{self._since_heartbeat[k]} PDOs (about {limit_s:g} s; producer time 0x1017 "
+                f"= {self.drive.heartbeat_ms} ms); last NMT state {self.nmt_state[k]}, {said}")
+        return None, Fault(0), None
+
+    # -- reporting -------------------------------------------------------------------------
+    def describe(self) -> str:
+        return self.drive.name
+
+    def not_relaxed(self) -> list[str]:
+        """Drives that cannot be at their holding floor: what their statusword said."""
+        return [f"{self.specs[k].name} (node {self.board_ids[k]}): drive reported "
+                f"'{self.state[k]}', power stage off or stopping, not at the holding floor"
+                for k in range(len(self.nodes))
+                if self._enabled[k] and self.state[k] != sm.OPERATION_ENABLED]
+
+    def unreachable(self, watchdog_s: float) -> str:
+        states = ", ".join(f"{s.name} '{st}'" for s, st in zip(self.specs, self.state,
+                                                                strict=True))
+        return (f"{self.name} drives (last reported: {states}): each drive's heartbeat "
+                f"consumer (0x1016) misses the host within {watchdog_s:g} s and the drive "
+                "leaves 'Operation enabled' by its own reaction (0x6007; not seen from here)")
