@@ -361,3 +361,39 @@ def load_robot_protocol(path):
     from pimbs_hw.protocol.profiles import protocols_for
 
     return protocols_for(load_robot(path))[0]
+
+
+def test_check_wiring_names_a_drive_whose_position_counts_backwards():
+    """direction applies to CiA 402 drives too: m2's drive counts down as its wire pays out,
+    the robot file says +1; pulling it, the tension rises while the length seems to grow."""
+    from pimbs_hw.wiring import check_wiring
+
+    with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS,
+                  mock_options={"winding": [1, 1, -1, 1]}) as (driver, _):
+        results = check_wiring(driver, settle_s=0.4, watch_s=0.15)
+    assert [r.muscle for r in results if not r.ok] == ["m2"]
+    assert all(r.d_tension > 5 and r.d_length < 0 for r in results if r.ok)
+
+
+def test_canopen_ids_that_collide_with_another_board_are_refused(tmp_path):
+    """A CiA 402 drive owns CANopen's predefined ids of its node (0x180 + n, 0x580 + n, …): an
+    ODrive whose block of ids lands there is refused before anything is sent."""
+    from pimbs_hw.protocol.ids import IdCollision, check_ids
+    from pimbs_hw.protocol.profiles import protocols_for
+
+    text = (HERE / "two-link-cia402.muscles.yaml").read_text().replace(
+        "../../calibration", str(HERE.parent.parent / "calibration"))
+    for name in ("foc-mc-csp.eds", "foc-mc-csp.cia402.yaml"):
+        (tmp_path / name).write_text((HERE / name).read_text())
+    path = tmp_path / "two-link-cia402.muscles.yaml"
+    path.write_text(text)
+    robot = load_robot(path)
+    check_ids(robot, protocols_for(robot))  # four drives, nodes 1-4: no collision
+    # m1 becomes ODrive node 12: its ids 0x180-0x19F hold the drives' TPDO1 0x181-0x184
+    clash = text.replace("    board_id: 2\n",
+                         "    board_id: 12\n    protocol: odrive-cansimple\n", 1)
+    path.write_text(clash)
+    robot = load_robot(path)
+    with pytest.raises(IdCollision, match=r"muscle m\d \(board \d+, .*\) and muscle m\d "
+                       r"\(board \d+, .*\) both use CAN id\(s\) 0x18"):
+        check_ids(robot, protocols_for(robot))

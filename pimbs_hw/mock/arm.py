@@ -156,7 +156,7 @@ class MockArm:
             from pimbs_hw.mock.cia402_drive import Cia402Board
             from pimbs_hw.protocol.cia402_config import load_drive_file
 
-            return Cia402Board(spec, load_drive_file(name), now)
+            return Cia402Board(spec, load_drive_file(name), now, winding)
         from pimbs_hw.protocol.profile import load_profile
 
         profile = load_profile(profile_path(name))

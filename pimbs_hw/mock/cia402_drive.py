@@ -101,7 +101,7 @@ class Cia402Board:
 
     checksum = False
 
-    def __init__(self, spec, drive, now: float) -> None:
+    def __init__(self, spec, drive, now: float, winding: int = 1) -> None:
         self.spec, self.drive = spec, drive
         self.node = canopen.LocalNode(spec.board_id, drive.object_dictionary(spec.board_id))
         self.net = _Outbox()
@@ -121,6 +121,8 @@ class Cia402Board:
         self.mode_op = 0
         self.targets: dict[tuple[int, int], int] = {}
         self.hold_m = 0.0
+        # -1: this drive's position counts down as its wire pays out (how it is wound)
+        self.winding = winding
         self.error_register, self.relax_n = 0, spec.f_floor
         self.injected: set[str] = set()
         self.host_seen: float | None = None
@@ -144,7 +146,8 @@ class Cia402Board:
         for ref, value in ((d.tension_actual, r.tension_n), (d.position_actual, r.position_m),
                            (d.temperature, r.temperature_c)):
             if ref is not None and (index, subindex) == (ref.index, ref.subindex):
-                raw = round(value * ref.per_si)
+                sign = self.winding if ref is d.position_actual else 1
+                raw = round(sign * value * ref.per_si)
                 lo, hi = _range(od)
                 return max(lo, min(hi, raw))
         return None
@@ -252,7 +255,8 @@ class Cia402Board:
             return "tension", 0.0  # power stage off: the motor turns freely, the wire is slack
         if self.mode_op in (8, 1) and d.position_target is not None:
             ref = d.position_target
-            return "length", self.targets.get((ref.index, ref.subindex), 0) / ref.per_si
+            return "length", (self.winding * self.targets.get((ref.index, ref.subindex), 0)
+                              / ref.per_si)
         ref = d.tension_target
         return "tension", max(0.0, self.targets.get((ref.index, ref.subindex), 0) / ref.per_si)
 

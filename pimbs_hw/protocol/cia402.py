@@ -116,6 +116,8 @@ class Cia402Protocol(BoardProtocol):
         self.identity: list[tuple[int, int, int] | None] = [None] * n
         self.tension_mode, self.position_mode = [10] * n, [8] * n
         self.relax_n = [s.f_floor for s in self.specs]
+        # direction -1: the drive's position counts down as the wire pays out (docs/boards.md)
+        self.sign = [float(getattr(s, "direction", 1)) for s in self.specs]
         self._since_heartbeat = [0] * n  # TPDOs decoded since the last heartbeat
         self._enabled = [False] * n  # reached Operation enabled at connect
         self._stopping = [False] * n  # a quick stop was commanded
@@ -263,7 +265,8 @@ class Cia402Protocol(BoardProtocol):
                 raise ValueError(f"muscle {self.specs[k].name}: length control is not "
                                  f"available on its drive ({drive.eds.name}): {why}")
             values[(0x6060, 0)] = self.position_mode[k]
-            values[drive.position_target.key] = self._encode(k, drive.position_target, value)
+            values[drive.position_target.key] = self._encode(k, drive.position_target,
+                                                             self.sign[k] * value)
         else:
             raise ValueError(f"unknown command kind {kind!r}")
         if kind != "stop":  # from here on a drive out of Operation enabled is a fault again
@@ -325,6 +328,8 @@ class Cia402Protocol(BoardProtocol):
                           ("temperature_c", drive.temperature)):
             if ref is not None and ref.key in values:
                 fields[name] = values[ref.key] / ref.per_si
+        if "position_m" in fields:
+            fields["position_m"] *= self.sign[k]
         if (0x6061, 0) in values:
             self.mode_display[k] = values[(0x6061, 0)]
             wrong = self._mode_wrong(k)
@@ -378,6 +383,18 @@ class Cia402Protocol(BoardProtocol):
         return None, Fault(0), None
 
     # -- reporting -------------------------------------------------------------------------
+    def ids_used(self, i: int) -> set[int]:
+        """CANopen's predefined connection set of the drive's node (CiA 301): EMCY 0x080,
+        TPDO 0x180-0x480, RPDO 0x200-0x500, SDO 0x580/0x600 and heartbeat 0x700, + node id."""
+        node = self.board_ids[self.indices.index(i)]
+        return {base + node for base in (0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x400,
+                                         0x480, 0x500, 0x580, 0x600, 0x700)}
+
+    def shared_ids(self) -> dict[str, set[int]]:
+        host = self.drive.host_node_id
+        return {"CANopen NMT and SYNC": {0x000, 0x080},
+                f"the host's heartbeat (node {host})": {0x700 + host}}
+
     def describe(self) -> str:
         return self.drive.name
 

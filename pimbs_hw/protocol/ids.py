@@ -39,8 +39,9 @@ def check_ids(robot, protocols: Sequence[BoardProtocol]) -> None:
                                   f"0x{max(ids):X}, beyond the 11-bit 0x7FF; give it a lower "
                                   f"board_id (ODrive node ids are 0-63)")
             owners.append((owner, ids))
-        owners.extend((f"{what} ({proto.name})", ids)
-                      for what, ids in proto.shared_ids().items())
+        for what, ids in proto.shared_ids().items():  # (two drive files share NMT/SYNC)
+            if (f"{what} ({proto.name})", ids) not in owners:
+                owners.append((f"{what} ({proto.name})", ids))
     for a, (name_a, ids_a) in enumerate(owners):
         for name_b, ids_b in owners[a + 1:]:
             if common := ids_a & ids_b:
