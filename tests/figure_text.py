@@ -54,3 +54,11 @@ def overlapping_texts(fig, tolerance_px: float = 0.5) -> list[tuple[str, str]]:
             if w > tolerance_px and h > tolerance_px:
                 pairs.append((a, b))
     return pairs
+
+
+def texts_cut_off(fig, tolerance_px: float = 1.0) -> list[str]:
+    """Drawn texts that stick out of the figure (cut off in the PNG)."""
+    width, height = fig.canvas.get_width_height()
+    return [text for text, box in drawn_texts(fig)
+            if box.x0 < -tolerance_px or box.y0 < -tolerance_px
+            or box.x1 > width + tolerance_px or box.y1 > height + tolerance_px]

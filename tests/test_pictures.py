@@ -1,5 +1,5 @@
-"""Every PNG the project writes is readable: no two of its texts overlap, on every built-in
-and fixture arm.
+"""Every PNG the project writes is readable: no two of its texts overlap and none is cut
+off at the figure's edge, on every built-in and fixture arm.
 
 Each figure is rendered as the command writes it; at the moment it is saved, every text that
 reaches the canvas (labels, titles, tick labels, legend entries, leader-lined annotations) is
@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from pimbs_calibration.description import builtin_robots, load_robot
 from pimbs_cli.main import main
-from tests.figure_text import drawn_texts, overlapping_texts
+from tests.figure_text import drawn_texts, overlapping_texts, texts_cut_off
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE_ARMS = [
@@ -45,14 +45,15 @@ NAMED_ARMS = _distinct_names(ARMS)
 
 @pytest.fixture
 def saved(monkeypatch) -> dict[str, list[tuple[str, str]]]:
-    """Checks each figure as it is saved: file name -> overlapping text pairs."""
+    """Checks each figure as it is saved: file name -> overlapping text pairs, and
+    ("cut off", text) for a text that sticks out of the figure."""
     found: dict[str, list[tuple[str, str]]] = {}
     original = Figure.savefig
 
     def savefig(self, fname, *args, **kwargs):
         # an atomic write saves into ".NAME.PID.tmp" first
         name = re.sub(r"^\.(.*)\.\d+\.tmp$", r"\1", Path(getattr(fname, "name", fname)).name)
-        found[name] = overlapping_texts(self)
+        found[name] = overlapping_texts(self) + [("cut off", t) for t in texts_cut_off(self)]
         assert drawn_texts(self), f"{name}: nothing drawn"
         return original(self, fname, *args, **kwargs)
 
@@ -79,12 +80,15 @@ def test_robot_plot_labels_do_not_collide(robot, tmp_path, saved):
 
 
 def test_the_overlap_check_sees_a_pile_of_labels():
-    """The checker is not blind: labels written at one anchor (the old picture) collide."""
+    """The checker is not blind: labels written at one anchor (the old picture) collide,
+    and a title wider than the figure is cut off."""
     fig = Figure()
     ax = fig.add_subplot(projection="3d")
     for name in ("m0", "m1", "m2"):
         ax.text(0, 0, 0, name)
     assert len(overlapping_texts(fig)) == 3
+    fig.suptitle("a title far too long for a figure of this width " * 3)
+    assert texts_cut_off(fig) == [fig._suptitle.get_text()]
 
 
 @pytest.mark.parametrize("robot", NAMED_ARMS, ids=lambda r: Path(r).name.split(".")[0])
@@ -135,3 +139,16 @@ def test_estimate_plot_does_not_collide(robot, tmp_path, saved):
         range_source="robot description")
     estimate_figure(report, measured, tmp_path / "estimate.png")
     assert saved == {"estimate.png": []}
+
+
+@pytest.mark.slow
+def test_experiment_figures_do_not_collide(tmp_path, saved):
+    """The L_eval curves of the two-joint table and of the 5-DOF table (ten methods in one
+    legend) and the joint-angle / muscle-length figure, from a 5-epoch run."""
+    out = tmp_path / "exp"
+    res = CliRunner().invoke(main, ["experiment", "--quick", "--tables", "1,3", "--epochs", "5",
+                                    "--seeds", "1", "--n-train", "5", "--n-train", "10",
+                                    "--threads", "1", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert saved == {"table1-curves.png": [], "table1-joint-length.png": [],
+                     "table3-curves.png": []}
