@@ -28,8 +28,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-BLOCK = re.compile(r"<!-- numbers:(?P<name>[A-Za-z0-9_]+) -->\n(?P<body>.*?)<!-- /numbers -->",
-                   re.S)
+# markers stand on lines of their own, so prose may mention them
+BLOCK = re.compile(r"^<!-- numbers:(?P<name>[A-Za-z0-9_]+) -->\n(?P<body>.*?)^<!-- /numbers -->$",
+                   re.S | re.M)
 
 
 @dataclass(frozen=True)
