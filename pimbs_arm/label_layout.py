@@ -86,7 +86,9 @@ def place_labels(fig, ax, labels: Sequence[Label], obstacles: Sequence[Bbox],
         ax.annotate(label.text, xy=xy, xycoords="figure fraction", xytext=text_xy,
                     textcoords="figure fraction", ha="left" if dx >= -1e-9 else "right",
                     va="center", fontsize=label.fontsize, fontweight=label.weight,
-                    color=label.colour, arrowprops=arrow, annotation_clip=False, zorder=5)
+                    color=label.colour, arrowprops=arrow, annotation_clip=False, zorder=5,
+                    # a light backing keeps a label legible where it lies across a wire
+                    bbox=dict(boxstyle="square,pad=0.05", fc="white", ec="none", alpha=0.75))
         taken.append(box.padded(GAP_PX))
         used.append(box)
     return used
