@@ -37,6 +37,8 @@ def test_every_marked_block_names_an_existing_script():
     for block in blocks:
         assert block.script.is_file(), f"README block {block.name!r}: no {block.script}"
         assert "<!-- numbers:" not in block.body, f"block {block.name!r} is not closed"
+        # a reader sees which command to rerun, not only the hidden marker
+        assert f"benchmarks/{block.name}.py" in block.body, f"block {block.name!r}"
     regenerated = {b.name for b in blocks if b.regenerates()}
     assert {"test_count", "cli_startup"} <= regenerated
 
