@@ -1,4 +1,4 @@
-"""Where in (θ, f) the learned schema's error grows (issue 9, "why, measured").
+"""Where in (θ, f) the learned schema's error grows ("why, measured").
 
 Per arm and seed, N samples train the paper's network with Basic and the default (series-
 elastic, Const + PINN, automatic α with the evidence floor, lr decaying); every other sample

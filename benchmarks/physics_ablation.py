@@ -1,4 +1,4 @@
-"""Research driver for issue 9: which structure / physics weighting beats Basic, paired.
+"""Research driver: which structure / physics weighting beats Basic, paired.
 
 Each arm gives one 496-sample ATL recording; per seed, N samples are drawn, every method
 trains on exactly those samples from the same initial weights (seed), and the rest of the

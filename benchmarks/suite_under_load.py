@@ -1,6 +1,6 @@
 """Run the whole test suite N times in a row while another CPU-bound process runs.
 
-The issue's definition of "never flakes": on a 2-core machine, with one extra process spinning
+What "never flakes" means here: on a 2-core machine, with one extra process spinning
 on a core the whole time, the README's test command passes every time. Prints one line per
 run and a closing "N passed, N failed" line; exits non-zero if any run failed.
 

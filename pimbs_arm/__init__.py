@@ -6,5 +6,5 @@ Where things are: ``model.py`` (ArmModel), ``backend.py`` (the seam: what a geom
 gravity backend provides), ``backends/`` (pinocchio + via points today; MuJoCo's tendons go
 here), ``equilibrium.py`` (the pose an arm settles into), ``routing.py`` (every joint turned
 both ways), ``poses.py`` (feasible pose plans), ``explain.py`` and ``picture.py`` (what
-``pimbs robot`` prints and draws).
+``pimbs robot`` prints and draws; ``label_layout.py`` keeps the picture's labels apart).
 """

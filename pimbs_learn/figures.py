@@ -63,11 +63,12 @@ def plot_curves(t: TableResult, path: Path) -> Path:
     handles, names = axes[0][0].get_legend_handles_labels()
     ncol = min(len(names), 2 * len(ns))  # a single panel is too narrow for 4 columns
     rows = -(-len(names) // ncol)
-    top = 1 - (0.3 + 0.2 * rows) / fig.get_figheight()
-    fig.suptitle(f"{t.spec.title}   (line: mean, band: min–max over seeds)", fontsize=10,
+    # two title lines: on one line a long table title runs off a one-panel figure
+    top = 1 - (0.5 + 0.2 * rows) / fig.get_figheight()
+    fig.suptitle(f"{t.spec.title}\n(line: mean, band: min–max over seeds)", fontsize=10,
                  y=0.995)
     fig.legend(handles, names, loc="upper center", ncol=ncol, fontsize=8,
-               frameon=False, bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()))
+               frameon=False, bbox_to_anchor=(0.5, 1 - 0.5 / fig.get_figheight()))
     fig.tight_layout(rect=(0, 0, 1, top))
     return save_png(fig, path, dpi=120)
 

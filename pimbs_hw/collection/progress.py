@@ -77,7 +77,7 @@ class LiveReporter:
             grid.add_row("last", f"sample {r['sample']}", f"θ = [{pose}] rad")
         problems = f"{len(s.warnings)} warnings, {s.unsettled} unsettled, " \
                    f"{len(s.skipped)} skipped"
-        grid.add_row("issues", Text(problems, style="yellow" if s.warnings else "dim"), "")
+        grid.add_row("problems", Text(problems, style="yellow" if s.warnings else "dim"), "")
         return Group(grid)
 
 

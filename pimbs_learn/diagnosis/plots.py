@@ -116,7 +116,9 @@ def _fit_before_after(fit: dict, label: str, path: Path) -> Path:
                fit["torque_rms_Nm"]["after"]),
               ("held-out length RMS", "m", fit["length_rms_m"]["before"],
                fit["length_rms_m"]["after"]))
-    names = ["model alone", f"model +\n{label}" if label else "no effect\nnamed"]
+    # one effect per line: several names side by side run into the neighbouring bar's label
+    names = ["model alone",
+             "model\n+ " + label.replace(" + ", "\n+ ") if label else "no effect\nnamed"]
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.8))
     for ax, (title, unit, before, after) in zip(axes, panels, strict=True):
         vals = np.array([before, after], dtype=float)
