@@ -269,3 +269,36 @@ def test_pimbs_simulate_writes_a_valid_recording_of_an_mjcf_arm(tmp_path):
                                                      arm.muscle_jacobian(theta), tension)
     assert np.abs(residual).max() < 1e-6
     np.testing.assert_allclose(rec.tau_gravity, arm.gravity_torque(theta), atol=1e-9)
+
+
+def test_concealed_link_mass_and_routing_change_the_mjcf_arm(tmp_path):
+    from pimbs_sim.effects import parse_effect
+
+    arm = ArmModel.load(PLANAR)
+    heavy = parse_effect("mass:1.5").physics(arm)  # default: the last driven joint's body
+    # the same change written into the MJCF, measured by MuJoCo from scratch
+    changed = tmp_path / "heavy.xml"
+    changed.write_text(PLANAR.read_text().replace('mass="0.6"', 'mass="0.9"'))
+    truth = ArmModel.load(changed)
+    theta = np.array([[0.3, -0.4], [-0.5, 0.2]])
+    np.testing.assert_allclose(heavy.gravity_torque(theta), truth.gravity_torque(theta),
+                               atol=1e-12)
+    assert not np.allclose(arm.gravity_torque(theta), heavy.gravity_torque(theta))
+    np.testing.assert_array_equal(arm.backend.mj_model.body_mass, [0.0, 1.0, 0.6])  # untouched
+    moved = parse_effect("routing:0.004", seed=2).physics(arm)
+    shift = np.abs(moved.h_geom(theta) - arm.h_geom(theta)).max()
+    assert 1e-4 < shift < 0.05
+    with pytest.raises(ValueError, match="'nope' is not a body with mass"):
+        parse_effect("mass:1.5,link=nope").physics(arm)
+
+
+def test_training_on_an_mjcf_arm_says_in_one_line_that_it_has_no_prior(tmp_path):
+    rec = tmp_path / "s.parquet"
+    assert CliRunner().invoke(main, ["simulate", "--robot", str(PLANAR), "-n", "40",
+                                     "--out", str(rec)]).exit_code == 0
+    res = CliRunner().invoke(main, ["train", str(rec), "--robot", str(PLANAR), "--epochs", "2",
+                                    "--seed", "1"])
+    assert res.exit_code == 0, res.output
+    notes = [line for line in res.output.splitlines() if "no geometric prior" in line]
+    assert len(notes) == 1 and "MJCF robot" in notes[0] and "learns the whole length map" \
+        in notes[0]

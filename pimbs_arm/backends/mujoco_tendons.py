@@ -17,6 +17,7 @@ Joints that are not driven stay at their locked value (the description's ``locke
 
 from __future__ import annotations
 
+import copy
 import threading
 
 import mujoco
@@ -82,6 +83,45 @@ class MujocoBackend:
         other = object.__new__(MujocoBackend)
         other.__setstate__({**self.__getstate__(), "mj_model": model or self.mj_model})
         return other
+
+    def with_body_mass(self, body: str, scale: float) -> MujocoBackend:
+        """A copy whose ``body`` (a moving body of the MJCF) weighs ``scale`` times as much,
+        same centre of mass (its inertia scaled with it). Raises ``ValueError``."""
+        m = self.mj_model
+        names = {m.body(b).name: b for b in self.moving_bodies()}
+        if body not in names or m.body_mass[names[body]] <= 0:
+            raise ValueError(f"'{body}' is not a body with mass that a driven joint moves in "
+                             f"{self.robot.mjcf_path.name} (those: "
+                             f"{', '.join(n for n, b in names.items() if m.body_mass[b] > 0)})")
+        other = copy.deepcopy(m)
+        other.body_mass[names[body]] *= scale
+        other.body_inertia[names[body]] *= scale
+        return self.fresh(other)
+
+    def last_body(self) -> str:
+        """The heaviest body the last driven joint carries (the forearm, the hand...)."""
+        m = self.mj_model
+        joint = joint_names(m).index(self.joints[-1])
+        carrier = int(m.jnt_bodyid[joint])
+        return m.body(carrier).name or f"body{carrier}"
+
+    def muscle_sites(self) -> np.ndarray:
+        """Ids of the sites the muscles' tendons run through, in first-use order."""
+        m = self.mj_model
+        sites: list[int] = []
+        for t in self._tendon:
+            for k in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]):
+                if int(m.wrap_type[k]) == int(mujoco.mjtWrap.mjWRAP_SITE):
+                    if int(m.wrap_objid[k]) not in sites:
+                        sites.append(int(m.wrap_objid[k]))
+        return np.array(sites, dtype=int)
+
+    def with_site_shifts(self, shifts: np.ndarray) -> MujocoBackend:
+        """A copy whose muscle sites (``muscle_sites`` order) sit ``shifts`` (S, 3) metres from
+        the model's, in their bodies' frames: a routing the description got wrong."""
+        other = copy.deepcopy(self.mj_model)
+        other.site_pos[self.muscle_sites()] += np.asarray(shifts, dtype=np.float64)
+        return self.fresh(other)
 
     # ----------------------------------------------------------------------- MuJoCo passes
     def _position(self, theta: np.ndarray) -> mujoco.MjData:
