@@ -35,7 +35,8 @@ from pimbs_hw.mock.plant import PlantState, thermal_step
 from pimbs_recording.approach import FrictionPlay
 
 _EXP_CAP = 60.0  # cap K*dn: a tension beyond e^60 N is a broken simulation, not a number
-SETTLED_SPEED = 1e-3  # rad/s: joints slower than this (and motors at their targets) are at rest
+SETTLED_SPEED = 1e-3  # rad/s: joints slower than this for REST_S (motors at their targets)
+REST_S = 0.2  # s of arm time: a swing's turning point is slow only for an instant
 
 
 class PlantMismatch(ValueError):
@@ -75,6 +76,7 @@ class MujocoPlant:
         self._tension = np.zeros(m)
         self._lock = threading.Lock()
         self._debt = 0.0  # arm time not yet simulated (less than one timestep)
+        self._rest_s = 0.0  # arm time the joints have been slow for
         self._play = FrictionPlay(m)
         self._advance(settle_s, until_rest=True)
         self.state = PlantState(self._theta(), self._tension.copy(), self._length(),
@@ -139,6 +141,7 @@ class MujocoPlant:
         d.qfrc_applied[:] = -self._J[self._tendon].T @ self._tension
         mujoco.mj_step2(m, d)
         self._reset_locked()
+        self._rest_s = self._rest_s + dt if self._slow() else 0.0
 
     def _advance(self, arm_s: float, until_rest: bool = False) -> None:
         """Simulate ``arm_s`` seconds of arm time (or until the arm is at rest)."""
@@ -146,14 +149,18 @@ class MujocoPlant:
         self._debt += arm_s
         n = int(self._debt / dt)
         self._debt -= n * dt
-        for k in range(n):
+        for _ in range(n):
             self._substep()
-            if until_rest and k > 50 and self._at_rest():
+            if until_rest and self._at_rest():
                 self._debt = 0.0
                 return
 
-    def _at_rest(self) -> bool:
+    def _slow(self) -> bool:
         return bool(np.abs(self.data.qvel[self._dof]).max(initial=0.0) < SETTLED_SPEED)
+
+    def _at_rest(self) -> bool:
+        """Joints slow for the last ``REST_S`` of arm time."""
+        return self._rest_s >= REST_S
 
     def _theta(self) -> np.ndarray:
         return np.array(self.data.qpos[self._qadr])
