@@ -87,9 +87,19 @@ def is_mjcf(path: Path) -> bool:
 
 
 def compile_model(path: Path) -> mujoco.MjModel:
-    """MuJoCo's compiled model of an MJCF file; its parse/compile errors become one line."""
+    """MuJoCo's compiled model of an MJCF file; its parse/compile errors become one line.
+
+    The muscle actuators' length ranges are not computed (``<compiler><lengthrange
+    mode="none">``): PIMBS's muscles are the tendons, driven by its boards, not MJCF
+    actuators, and that computation (a simulation per actuator) can fail to converge on a
+    model that is otherwise fine.
+    """
     try:
-        return mujoco.MjModel.from_xml_path(str(path))
+        spec = mujoco.MjSpec.from_file(str(path))
+        options = getattr(spec.compiler, "LRopt", None)
+        if options is not None:
+            options.mode = mujoco.mjtLRMode.mjLRMODE_NONE
+        return spec.compile()
     except ValueError as exc:  # MuJoCo: "XML Error: ... Element 'x', line n"
         problem = " ".join(str(exc).split())
         raise MjcfError(path, f"MuJoCo cannot load this MJCF ({problem})",

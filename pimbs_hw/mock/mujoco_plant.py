@@ -3,10 +3,11 @@
 The quasi-static plant (``plant.py``) jumps to the arm model's equilibrium and relaxes toward
 it; a real arm swings, overshoots, rubs and settles. This plant integrates an MJCF with
 MuJoCo (inertia, joint damping and armature, tendon friction loss and damping, wrapping, as
-the file says), each muscle a motor winding its tendon through the series elastic element of
-the description (f = exp(K·Δn) − 1, Δn = tendon length − motor length, slack pulls nothing).
-The loadcell reads that tension, the motor encoder the motor length, the joint encoders the
-joint angles: what the boards report, never the model's equilibrium.
+the file says; its own actuators are disabled), each muscle a motor winding its tendon
+through the series elastic element of the description (f = exp(K·Δn) − 1, Δn = tendon
+length − motor length, slack pulls nothing). The loadcell reads that tension, the motor
+encoder the motor length, the joint encoders the joint angles: what the boards report,
+never the model's equilibrium.
 
 The plant MJCF may differ from the description (a pulley radius, a via point, a mass the
 description got wrong: the "real" arm); it must name the description's joints (hinges) and
@@ -56,6 +57,8 @@ class MujocoPlant:
         except MjcfError as exc:
             raise PlantMismatch(f"--plant {exc}") from exc
         self._map(model.robot)
+        # the boards drive the tendons; actuators the MJCF may define are not part of the arm
+        self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
         self.data = mujoco.MjData(self.mj)
         self.speed, self.motor_tau_s, self.tau_thermal_s = speed, motor_tau_s, tau_thermal_s
         m = model.n_muscles
