@@ -101,6 +101,8 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             f"--port pty") from exc
     boards = ", ".join(f"{m.name}=board {m.board_id}" for m in description.muscles)
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
+    if plant is not None:
+        click.echo(f"the true arm: {plant}, integrated by MuJoCo")
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:

@@ -121,3 +121,15 @@ def test_collect_refuses_a_body_effect_with_a_plant(tmp_path):
     res = CliRunner().invoke(main, ["collect", "--port", "can0", "--robot", str(PLANAR),
                                     "--plant", str(REAL), "-n", "2", "--out", str(out)])
     assert res.exit_code == 1 and "act on the simulated arm only" in res.output
+
+
+def test_mockbus_runs_a_mujoco_plant_and_refuses_one_that_does_not_fit():
+    res = CliRunner().invoke(main, ["mockbus", "--robot", str(PLANAR), "--plant", str(REAL),
+                                    "--port", "pty", "--duration", "0.3"])
+    assert res.exit_code == 0, res.output
+    assert f"the true arm: {REAL}, integrated by MuJoCo" in res.output
+    spatial = ARMS / "spatial_3dof.xml"
+    res = CliRunner().invoke(main, ["mockbus", "--robot", str(PLANAR), "--plant", str(spatial),
+                                    "--port", "pty", "--duration", "0.3"])
+    assert res.exit_code == 1 and res.output.count("\n") == 1
+    assert f"--plant {spatial}: no hinge joint named shoulder" in res.output
