@@ -302,3 +302,13 @@ def test_training_on_an_mjcf_arm_says_in_one_line_that_it_has_no_prior(tmp_path)
     notes = [line for line in res.output.splitlines() if "no geometric prior" in line]
     assert len(notes) == 1 and "MJCF robot" in notes[0] and "learns the whole length map" \
         in notes[0]
+
+
+def test_an_mjcf_arm_model_pickles_for_worker_processes():
+    import pickle
+
+    arm = ArmModel.load(SPATIAL)
+    copy = pickle.loads(pickle.dumps(arm))
+    theta = np.array([0.1, 0.2, -0.3])
+    np.testing.assert_array_equal(copy.muscle_jacobian(theta), arm.muscle_jacobian(theta))
+    np.testing.assert_array_equal(copy.gravity_torque(theta), arm.gravity_torque(theta))
