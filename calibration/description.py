@@ -26,6 +26,10 @@ Muscle file layout (values under ``defaults`` apply to every muscle that does no
         path:                             # >= 2 via points, fixed on links
           - {link: base_link, point: [0.0, 0.0, 0.05]}
           - {link: upper_arm, point: [0.0, 0.0, -0.1]}
+
+An MJCF (MuJoCo's XML) is a description too, bare (``arm.xml``) or named by a muscle file
+(``mjcf: arm.xml`` instead of ``urdf:``, mapping spatial tendons to boards by name): see
+``load_mjcf_description`` and docs/mujoco.md.
 """
 
 from __future__ import annotations
@@ -182,6 +186,9 @@ def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescriptio
         raise DescriptionError(path, "<file>", "top level is not a mapping",
                                "Write robot, urdf, joints, joint_encoders and muscles keys")
     if "mjcf" in raw:
+        if "urdf" in raw:
+            raise DescriptionError(path, "mjcf", "both 'urdf' and 'mjcf' are given",
+                                   "Keep one: an MJCF's tendons, or a URDF with via points")
         xml = path.parent / _require(raw, "mjcf", str, path, "mjcf")
         if not xml.is_file():
             raise DescriptionError(path, "mjcf", f"MJCF file {xml} not found",

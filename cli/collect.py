@@ -23,7 +23,8 @@ from pimbs_cli.common import check_output, robot_option, user_errors
 
 def _default_out(robot: str) -> Path:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    return Path(f"collection-{Path(robot).name.removesuffix('.muscles.yaml')}-{stamp}.parquet")
+    name = Path(robot).name.removesuffix(".muscles.yaml").removesuffix(".xml")
+    return Path(f"collection-{name}-{stamp}.parquet")
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:

@@ -207,6 +207,7 @@ def test_a_muscle_file_maps_tendons_to_boards_and_limits(tmp_path):
     ({"muscles": [{"name": "front", "K": -1}]}, "muscles[0].K", "positive"),
     ({"muscles": [{"name": "front", "board_id": 3}, {"name": "back", "board_id": 3}]},
      "muscles[1].board_id", "also used"),
+    ({"urdf": "arm.urdf"}, "mjcf", "both 'urdf' and 'mjcf'"),
 ])
 def test_muscle_file_mistakes_name_the_field(tmp_path, other_style, change, field, words):
     (tmp_path / "arm.xml").write_text(other_style.read_text())
