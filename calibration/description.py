@@ -27,6 +27,10 @@ Muscle file layout (values under ``defaults`` apply to every muscle that does no
         path:                             # >= 2 via points, fixed on links
           - {link: base_link, point: [0.0, 0.0, 0.05]}
           - {link: upper_arm, point: [0.0, 0.0, -0.1]}
+
+An MJCF (MuJoCo's XML) is a description too, bare (``arm.xml``) or named by a muscle file
+(``mjcf: arm.xml`` instead of ``urdf:``, mapping spatial tendons to boards by name): see
+``load_mjcf_description`` and docs/mujoco.md.
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ import yaml
 
 from pimbs_calibration.file_kind import model_file_kind, not_a_muscle_file
 from pimbs_calibration.urdf_model import (
+    UNLIMITED,
     ReducedModel,
     UrdfError,
     UrdfJoint,
@@ -170,8 +175,17 @@ def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
     if not path.is_file():
         raise DescriptionError(
             path, "robot", "no such built-in robot or muscle file",
-            f"Use one of {', '.join(_BUILTIN)} or a path to a *{MUSCLE_SUFFIX} file",
+            f"Use one of {', '.join(_BUILTIN)}, a path to a *{MUSCLE_SUFFIX} file or an MJCF "
+            "*.xml",
         )
+    if path.suffix.lower() == ".xml":
+        from pimbs_calibration.mjcf import is_mjcf
+
+        if not is_mjcf(path):
+            raise DescriptionError(path, "<file>", "not an MJCF (its root element is not "
+                                   "<mujoco>)", "Give an MJCF model, or a URDF through a "
+                                   f"*{MUSCLE_SUFFIX} file that names it")
+        return load_mjcf_description(path, {}, path)
     return _load_file(path, package_path)
 
 
@@ -187,6 +201,15 @@ def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescriptio
     if not isinstance(raw, dict):
         raise DescriptionError(path, "<file>", "top level is not a mapping",
                                "Write robot, urdf, joints, joint_encoders and muscles keys")
+    if "mjcf" in raw:
+        if "urdf" in raw:
+            raise DescriptionError(path, "mjcf", "both 'urdf' and 'mjcf' are given",
+                                   "Keep one: an MJCF's tendons, or a URDF with via points")
+        xml = path.parent / _require(raw, "mjcf", str, path, "mjcf")
+        if not xml.is_file():
+            raise DescriptionError(path, "mjcf", f"MJCF file {xml} not found",
+                                   "Give the MJCF path relative to the muscle file")
+        return load_mjcf_description(xml, raw, path)
     name = _require(raw, "robot", str, path, "robot")
     urdf_path = _urdf_path(raw, path, package_path)
     text, urdf_joints = _read_urdf(urdf_path, path)
@@ -362,6 +385,12 @@ def _parse_muscles(raw: dict, model, joints: tuple[str, ...], path: Path
             raise DescriptionError(path, f"muscles[{i}]", "expected a mapping",
                                    "Write each muscle as a mapping with name, board_id, path")
         muscles.append(_parse_muscle({**defaults, **entry}, i, model, joints, path))
+    _check_unique(muscles, path)
+    return tuple(muscles)
+
+
+def _check_unique(muscles: Sequence[MuscleSpec], path: Path) -> None:
+    """Two muscles with one name or one board would be confused on the bus and in files."""
     for key in ("name", "board_id"):
         seen: dict[Any, int] = {}
         for i, m in enumerate(muscles):
@@ -371,12 +400,20 @@ def _parse_muscles(raw: dict, model, joints: tuple[str, ...], path: Path
                                        f"{value!r} is also used by muscles[{seen[value]}]",
                                        f"Give each muscle a unique {key}")
             seen[value] = i
-    return tuple(muscles)
 
 
 def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Path
                   ) -> MuscleSpec:
     field = f"muscles[{i}]"
+    settings = _muscle_settings(entry, field, path)
+    via = _parse_path(_require(entry, "path", list, path, f"{field}.path"), model, joints,
+                      path, f"{field}.path")
+    return MuscleSpec(path=via, **settings)
+
+
+def _muscle_settings(entry: dict, field: str, path: Path) -> dict[str, Any]:
+    """Name, board, elastic law, limits, sensor calibration and protocol of one muscle entry
+    (everything but its path), validated."""
     name = _require(entry, "name", str, path, f"{field}.name")
     board_id = _require(entry, "board_id", int, path, f"{field}.board_id")
     values: dict[str, float] = {}
@@ -390,8 +427,6 @@ def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Pat
     if not 0 <= values["f_floor"] < values["f_max"]:
         raise DescriptionError(path, f"{field}.f_floor", f"{values['f_floor']} is not in "
                                f"[0, f_max={values['f_max']})", "Lower f_floor or raise f_max")
-    via = _parse_path(_require(entry, "path", list, path, f"{field}.path"), model, joints,
-                      path, f"{field}.path")
     protocol = entry.get("protocol")
     if protocol is not None:
         if not isinstance(protocol, str) or not protocol:
@@ -408,8 +443,8 @@ def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Pat
         raise DescriptionError(path, f"{field}.direction", f"{direction!r} is not 1 or -1",
                                "Write 1 when a positive motor turn reels the wire in, -1 when "
                                "it pays it out (`pimbs check-wiring` tells which)")
-    return MuscleSpec(name=name, board_id=board_id, path=via, protocol=protocol,
-                      direction=int(direction), **values)
+    return {"name": name, "board_id": board_id, "protocol": protocol,
+            "direction": int(direction), **values}
 
 
 def _parse_path(entries: list, model, joints: tuple[str, ...], path: Path, field: str
@@ -446,3 +481,144 @@ def _supporting_joints(model, link: str) -> set[str]:
     """Names of the joints between the root and ``link``."""
     joint = model.frames[model.getBodyId(link)].parentJoint
     return {model.names[j] for j in model.supports[joint] if j != 0}
+
+
+# What a bare MJCF gets for what MuJoCo does not say (docs/mujoco.md lists them): the elastic
+# law and sensor calibration of the built-in two-link arm's boards, and a sampling range for a
+# hinge without limits.
+MJCF_MUSCLE_DEFAULTS: dict[str, float] = {
+    "K": 1000.0, "f_max": 600.0, "f_floor": 10.0, "counts_per_m": 108650.0,
+    "loadcell_n_per_count": 0.25, "loadcell_offset_counts": 2048.0,
+}
+MJCF_UNLIMITED_RANGE = (-0.5, 0.5)  # rad: sampling range of a hinge with no range
+
+
+def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
+    """A description whose muscles are the spatial tendons of the MJCF ``xml``.
+
+    ``raw`` is the muscle file naming it (``mjcf: arm.xml``; ``{}`` for a bare MJCF) and
+    ``path`` that file (or the MJCF itself). Driven joints: ``joints`` or every hinge, sampled
+    in ``range`` or the hinge's own range (``MJCF_UNLIMITED_RANGE`` if it has none); every
+    other hinge and slide joint is locked at ``lock`` or its ``qpos0``. Muscles: ``muscles``
+    (tendons by name, in column order) or every spatial tendon in file order, boards numbered
+    1, 2, ... in that order; f_max is a force-limited actuator's largest |forcerange| on the
+    tendon where there is one.
+    """
+    from pimbs_calibration.mjcf import MjcfError, read_mjcf
+
+    try:
+        arm = read_mjcf(xml)
+    except MjcfError as exc:
+        where = "" if exc.path.resolve() == path.resolve() else f"{exc.path}: "
+        raise DescriptionError(path, "mjcf" if where else "<file>", where + exc.problem,
+                               exc.fix) from exc
+    hinges = arm.hinge_names()
+    if not hinges:
+        raise DescriptionError(path, "joints", f"{xml} has no hinge joint",
+                               "Muscles drive hinge joints; add <joint type=\"hinge\">")
+    by_name = {j.name: j for j in arm.joints}
+    entries = raw.get("joints", [{"name": n} for n in hinges])
+    if not isinstance(entries, list) or not entries:
+        raise DescriptionError(path, "joints", f"expected a list of joints, got {entries!r}",
+                               "Write '- {name: <hinge>, range: [lo, hi]}' per driven joint")
+    names, ranges = [], []
+    for i, entry in enumerate(entries):
+        field = f"joints[{i}]"
+        if not isinstance(entry, dict):
+            raise DescriptionError(path, field, "expected a mapping {name, range}",
+                                   "Write '- {name: <joint>, range: [lo, hi]}'")
+        name = _require(entry, "name", str, path, f"{field}.name")
+        if name not in hinges or name in names:
+            problem = (f"joint '{name}' listed twice" if name in names else
+                       f"'{name}' is not a hinge joint of {xml.name} (hinges: {hinges})")
+            raise DescriptionError(path, f"{field}.name", problem,
+                                   "List each driven hinge joint once, by its MJCF name")
+        joint = by_name[name]
+        lo, hi = joint.range if joint.limited else (-UNLIMITED, UNLIMITED)
+        default = joint.range if joint.limited else MJCF_UNLIMITED_RANGE
+        rng = (_vector(entry["range"], 2, path, f"{field}.range") if "range" in entry
+               else np.array(default, dtype=np.float64))
+        if not (rng[0] < rng[1] and lo <= rng[0] and rng[1] <= hi):
+            raise DescriptionError(path, f"{field}.range", f"{list(rng)} is not an increasing "
+                                   f"range inside the joint's range [{lo:g}, {hi:g}] rad",
+                                   "Narrow the sampling range or widen the MJCF joint range")
+        names.append(name)
+        ranges.append(rng)
+    locked = _mjcf_lock(raw, arm, names, path)
+    muscles = _mjcf_muscles(raw, arm, path)
+    encoders = raw.get("joint_encoders", True)
+    if not isinstance(encoders, bool):
+        raise DescriptionError(path, "joint_encoders", f"expected true or false, got "
+                               f"{encoders!r}", "Write 'joint_encoders: true' or false")
+    name = raw.get("robot", arm.name)
+    if not isinstance(name, str) or not name:
+        raise DescriptionError(path, "robot", f"expected a name, got {name!r}",
+                               "Write 'robot: <name>'")
+    return RobotDescription(
+        name=name, urdf_path=xml.resolve(), muscle_path=path.resolve(), joints=tuple(names),
+        joint_range=np.array(ranges, dtype=np.float64).reshape(len(names), 2),
+        joint_encoders=encoders, muscles=muscles, locked=locked, mjcf_path=xml.resolve())
+
+
+def _mjcf_lock(raw: dict, arm, driven: list[str], path: Path) -> tuple[tuple[str, float], ...]:
+    """Every hinge and slide joint not driven, at ``lock`` or its qpos0 (ball and free joints
+    stay at qpos0)."""
+    lock = raw.get("lock", {}) or {}
+    if not isinstance(lock, dict):
+        raise DescriptionError(path, "lock", f"expected a mapping, got {lock!r}",
+                               "Write 'lock: {joint_name: angle_in_rad}'")
+    free = {j.name: j for j in arm.joints if j.type in ("hinge", "slide")
+            and j.name not in driven}
+    for name, value in lock.items():
+        field = f"lock.{name}"
+        if name not in free:
+            raise DescriptionError(path, field, f"'{name}' is not a hinge or slide joint that "
+                                   f"is not driven (those: {sorted(free)})",
+                                   "Lock a joint of the MJCF that 'joints' does not list")
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value):
+            raise DescriptionError(path, field, f"expected a finite number, got {value!r}",
+                                   "Give the angle in rad (or position in m)")
+        joint = free[name]
+        if joint.limited and not joint.range[0] <= value <= joint.range[1]:
+            raise DescriptionError(path, field, f"{value} is outside the joint's range "
+                                   f"[{joint.range[0]:g}, {joint.range[1]:g}]",
+                                   "Lock it inside its range")
+    return tuple((n, float(lock.get(n, j.qpos0))) for n, j in free.items())
+
+
+def _mjcf_muscles(raw: dict, arm, path: Path) -> tuple[MuscleSpec, ...]:
+    """The muscles: listed tendons (by name) or every spatial tendon; numbers from the entry,
+    then ``defaults``, then the tendon's actuator, then ``MJCF_MUSCLE_DEFAULTS``."""
+    spatial = arm.spatial_names()
+    tendons = {t.name: t for t in arm.tendons}
+    if not spatial:
+        raise DescriptionError(path, "muscles", f"{arm.path} has no spatial tendon",
+                               "Describe each muscle as a <tendon><spatial> through sites")
+    defaults = raw.get("defaults", {}) or {}
+    if not isinstance(defaults, dict):
+        raise DescriptionError(path, "defaults", "expected a mapping",
+                               "Write 'defaults: {K: 1000, ...}' or remove it")
+    entries = raw.get("muscles", [{"name": n} for n in spatial])
+    if not isinstance(entries, list) or not entries:
+        raise DescriptionError(path, "muscles", f"expected a list of tendons, got {entries!r}",
+                               "Write '- {name: <spatial tendon>, board_id: 1}' per muscle")
+    muscles = []
+    for i, entry in enumerate(entries):
+        field = f"muscles[{i}]"
+        if not isinstance(entry, dict):
+            raise DescriptionError(path, field, "expected a mapping",
+                                   "Write each muscle as '- {name: <tendon>, board_id: 1}'")
+        name = _require(entry, "name", str, path, f"{field}.name")
+        if name not in spatial:
+            what = ("a fixed tendon (a joint coupling, no path)" if name in tendons
+                    else "not a tendon of the MJCF")
+            raise DescriptionError(path, f"{field}.name", f"'{name}' is {what} (spatial "
+                                   f"tendons: {spatial})", "Name a spatial tendon")
+        base = dict(MJCF_MUSCLE_DEFAULTS, board_id=i + 1)
+        if tendons[name].force_limit is not None:
+            base["f_max"] = tendons[name].force_limit
+        settings = _muscle_settings({**base, **defaults, **entry}, field, path)
+        muscles.append(MuscleSpec(path=(), **settings))
+    _check_unique(muscles, path)
+    return tuple(muscles)

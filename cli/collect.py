@@ -23,7 +23,8 @@ from pimbs_cli.common import check_output, robot_option, user_errors
 
 def _default_out(robot: str) -> Path:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    return Path(f"collection-{Path(robot).name.removesuffix('.muscles.yaml')}-{stamp}.parquet")
+    name = Path(robot).name.removesuffix(".muscles.yaml").removesuffix(".xml")
+    return Path(f"collection-{name}-{stamp}.parquet")
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:
@@ -84,6 +85,9 @@ def _stop_on_signals() -> Iterator[None]:
               help="command the poses with this learned body schema (a `pimbs train --out` "
                    "directory) instead of the geometric model; samples where it would "
                    "extrapolate or be unsafe fall back to the model, with a warning")
+@click.option("--plant", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="simulated arm only: an MJCF that MuJoCo integrates as the true arm "
+                   "(mj_step dynamics; may differ from --robot, as a real arm does)")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
 @click.option("--calibration", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -94,7 +98,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
             settle_timeout: float, fixed_wait: float | None, schema_dir: Path | None,
-            mock_speed: float, calibration: Path | None) -> None:
+            plant: Path | None, mock_speed: float, calibration: Path | None) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
@@ -110,8 +114,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     from pimbs_recording.writer_lock import writer_lock
 
     simulated = is_simulated(port)
-    if (faults or conceal) and not simulated:
-        raise click.UsageError(f"--fault and --conceal act on the simulated arm only; "
+    if (faults or conceal or plant) and not simulated:
+        raise click.UsageError(f"--fault, --conceal and --plant act on the simulated arm only; "
                                f"use --port virtual, not {port!r}")
     if resume and out is None:
         raise click.UsageError("--resume needs --out FILE (the recording to continue)")
@@ -128,7 +132,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
-    meta = collection_meta(model, {**plan.meta(), **schema_meta}, port=port,
+    plant_meta = {} if plant is None else {"plant": str(plant.resolve())}
+    meta = collection_meta(model, {**plan.meta(), **schema_meta, **plant_meta}, port=port,
                            simulated=simulated, settle=settle.meta(), move=moves.meta())
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
@@ -142,7 +147,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             return
         with _stop_on_signals():
             _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-                 zero_m, note)
+                 zero_m, note, plant)
 
 
 def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):
@@ -175,7 +180,7 @@ def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, st
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-         zero_m=None, note=None) -> None:
+         zero_m=None, note=None, plant=None) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -191,7 +196,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
     reason: str | None = None  # what happened, for the summary
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
-                       speed=moves.speed, zero_m=zero_m) as link:
+                       speed=moves.speed, zero_m=zero_m, plant=plant) as link:
             if note:
                 console.print(note)
             collector = Collector(link, model, plan, writer, start, settle, move=moves)

@@ -38,10 +38,10 @@ def user_errors(func: F) -> F:
 
 
 def robot_option(default: str | None = "two-link-4-muscle") -> Callable[[F], F]:
-    """`--robot NAME|PATH`: a built-in robot name or a path to a `.muscles.yaml`."""
+    """`--robot NAME|PATH`: a built-in robot name, a `.muscles.yaml` or an MJCF `.xml`."""
     return click.option("--robot", default=default, show_default=default is not None,
-                        help="built-in robot name (two-link-4-muscle, left-arm-5dof) or path "
-                             "to a .muscles.yaml robot description")
+                        help="built-in robot name (two-link-4-muscle, left-arm-5dof), path "
+                             "to a .muscles.yaml robot description, or an MJCF .xml")
 
 
 def force_option() -> Callable[[F], F]:

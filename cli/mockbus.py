@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from pathlib import Path
 
 import click
 
@@ -66,11 +67,15 @@ def check_port(port: str) -> str:
 @click.option("--seed", type=int, default=0, show_default=True, help="sensor noise seed")
 @click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="time speed-up of the arm's dynamics")
+@click.option("--plant", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="an MJCF that MuJoCo integrates as the true arm (mj_step dynamics; may "
+                   "differ from --robot, as a real arm does)")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
               help="s to run [default: until Ctrl-C]")
 @user_errors
 def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
-            conceal: tuple[str, ...], seed: int, speed: float, duration: float | None) -> None:
+            conceal: tuple[str, ...], seed: int, speed: float, plant: Path | None,
+            duration: float | None) -> None:
     """Run simulated muscle boards of ROBOT on a pty or a local CAN channel until Ctrl-C."""
     from pimbs_calibration.description import load_robot
     from pimbs_hw.errors import PortError
@@ -87,7 +92,8 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
                    "use @SECONDSs or @CYCLESc", err=True)
     effects = [parse_effect(c, seed=seed) for c in conceal] or None
     try:
-        mock = MockArm(description, link, effect=effects, faults=specs, seed=seed, speed=speed)
+        mock = MockArm(description, link, effect=effects, faults=specs, seed=seed, speed=speed,
+                       plant=plant)
     except PortError as exc:
         raise click.ClickException(
             f"--port {link}: cannot open it ({exc.problem}); create it first "
@@ -95,6 +101,8 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             f"--port pty") from exc
     boards = ", ".join(f"{m.name}=board {m.board_id}" for m in description.muscles)
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
+    if plant is not None:
+        click.echo(f"the true arm: {plant}, integrated by MuJoCo")
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:

@@ -48,13 +48,22 @@ def _float(text: str) -> float:
               type=click.Path(file_okay=False, path_type=Path),
               help="where a 'urdf: package://...' is looked for (repeatable; also the muscle "
                    "file's package_path and ROS_PACKAGE_PATH)")
+@click.option("--poses-file", "poses_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV of poses (a header naming the driven joints, one pose in rad a row): "
+                   "write every muscle's length and Jacobian at them to --json instead of "
+                   "explaining")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False, path_type=Path),
+              help="with --poses-file: the JSON to write (joints, muscles, theta, length, "
+                   "h_geom, jacobian [pose][muscle][joint])")
 @force_option()
 @user_errors
 def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
-            package_path: tuple[Path, ...], force: bool) -> None:
-    """Explain ROBOT (a built-in name or a .muscles.yaml): joints driven and locked, muscles
-    and boards, moment arms over the joint ranges, and whether every driven joint can be
-    turned both ways at every checked pose (exit status 1 where it cannot)."""
+            package_path: tuple[Path, ...], poses_file: Path | None, json_out: Path | None,
+            force: bool) -> None:
+    """Explain ROBOT (a built-in name, a .muscles.yaml or an MJCF .xml): joints driven and
+    locked, muscles and boards, moment arms over the joint ranges, and whether every driven
+    joint can be turned both ways at every checked pose (exit status 1 where it cannot).
+    With --poses-file and --json: the muscle lengths and Jacobians at given poses."""
     import numpy as np
 
     from pimbs_arm.explain import describe
@@ -62,9 +71,17 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
     from pimbs_arm.routing import BOTH_WAYS_FIX, both_ways_problem, check_poses, routing_report
     from pimbs_calibration.description import load_robot
 
+    if (poses_file is None) != (json_out is None):
+        raise click.UsageError("--poses-file and --json go together: the poses to read and "
+                               "the JSON to write")
+    if json_out is not None:
+        check_output(json_out, force=force, what="JSON file", option="--json")
     if plot is not None:
         check_output(plot, force=force, what="picture", option="--plot")
     arm = ArmModel(load_robot(robot, package_path))
+    if poses_file is not None:
+        _write_geometry(arm, poses_file, json_out)
+        return
     other = None if pose is None else np.array(_parse_pose(pose, arm.joints))
     report = routing_report(arm, check_poses(arm, n_poses))
     for line in describe(arm, report):
@@ -81,3 +98,28 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
         raise click.ClickException(
             f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways at the "
             f"poses listed above ({problem}); {BOTH_WAYS_FIX}")
+
+
+def _write_geometry(arm, poses_file: Path, json_out: Path) -> None:
+    """``--poses-file`` + ``--json``: lengths and Jacobians at the CSV's poses, one JSON."""
+    import json
+
+    import numpy as np
+
+    from pimbs_arm.geometry_table import geometry_table, read_poses_csv
+    from pimbs_recording.atomic import write_text_atomic
+
+    theta, ignored = read_poses_csv(poses_file, arm.joints)
+    if ignored:
+        click.echo(f"{poses_file}: column(s) {', '.join(ignored)} name no driven joint of "
+                   f"{arm.robot.name}; ignored", err=True)
+    lo, hi = arm.joint_limits[:, 0], arm.joint_limits[:, 1]
+    outside = np.flatnonzero(((theta < lo) | (theta > hi)).any(axis=1))
+    if len(outside):
+        rows = ", ".join(str(i + 1) for i in outside[:10])
+        click.echo(f"{poses_file}: {len(outside)} pose(s) lie outside the joint limits (rows "
+                   f"{rows}{', ...' if len(outside) > 10 else ''}); their geometry is written "
+                   "as asked", err=True)
+    write_text_atomic(json_out, json.dumps(geometry_table(arm, theta)) + "\n")
+    click.echo(f"wrote {json_out}: lengths and Jacobians of {arm.n_muscles} muscles over "
+               f"{arm.n_joints} joints at {len(theta)} poses")

@@ -17,37 +17,26 @@ from pimbs_calibration.urdf_model import UNLIMITED, link_masses, parse_joints
 def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:
     """Lines of text explaining the description and the routing check."""
     robot = arm.robot
-    text = robot.urdf_path.read_text()
-    urdf = parse_joints(robot.urdf_path, text)
-    moving = float(sum(inertia.mass for inertia in arm.backend._model.inertias[1:]))
-    lines = [f"robot {robot.name}: {robot.muscle_path}",
-             f"  URDF {robot.urdf_path}",
-             f"  total mass {sum(link_masses(text).values()):.4g} kg ({moving:.4g} kg moved by "
-             f"the driven joints); joint angles from "
-             f"{'joint encoders' if robot.joint_encoders else 'the model'}", "",
-             f"driven joints ({arm.n_joints}, in column order):"]
+    mjcf = arm.backend.kind == "mjcf"
+    source, kinds, locked_lines, routes = _mjcf_parts(arm) if mjcf else _urdf_parts(arm)
+    what = "MJCF" if mjcf else "URDF"
+    lines = [f"robot {robot.name}: {robot.muscle_path}", *source,
+             f"  joint angles from {'joint encoders' if robot.joint_encoders else 'the model'}",
+             "", f"driven joints ({arm.n_joints}, in column order):"]
     for name, rng, lim in zip(arm.joints, arm.joint_range, arm.joint_limits, strict=True):
         limits = ("none (continuous)" if lim[1] >= UNLIMITED
                   else f"[{lim[0]:.3g}, {lim[1]:.3g}]")
-        lines.append(f"  {name:<22} {urdf[name].type:<10} sampled in [{rng[0]:.3g}, "
-                     f"{rng[1]:.3g}] rad, URDF limits {limits}")
-    followers = {f[0]: f[1:] for f in robot.followers}
-    locked = dict(robot.locked)
-    if locked or followers:
-        lines += ["", f"locked joints ({len(locked)}; not driven by muscles, held rigid):"]
-        for name, value in locked.items():
-            leader = urdf[name].mimic[0] if urdf[name].mimic else None
-            how = ("" if leader is None else f" (mimic of {leader})" if leader in urdf
-                   else f" (mimic of {leader}, which is not a joint of the URDF)")
-            lines.append(f"  {name:<22} {urdf[name].type:<10} at {value:.4g}{how}")
-        for name, (leader, m, c) in followers.items():
-            lines.append(f"  {name:<22} follows driven {leader}: q = {m:g}*{leader} + {c:g}")
+        lines.append(f"  {name:<22} {kinds[name]:<10} sampled in [{rng[0]:.3g}, "
+                     f"{rng[1]:.3g}] rad, {what} limits {limits}")
+    if locked_lines:
+        lines += ["", f"locked joints ({len(locked_lines)}; not driven by muscles, held rigid):",
+                  *locked_lines]
+    via = "MuJoCo tendon path" if mjcf else "via points"
     lines += ["", f"muscles ({arm.n_muscles}):",
-              f"  {'name':<14} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  via points"]
-    for m in robot.muscles:
-        links = " > ".join(dict.fromkeys(v.link for v in m.path))
+              f"  {'name':<14} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  {via}"]
+    for m, route in zip(robot.muscles, routes, strict=True):
         lines.append(f"  {m.name:<14} {m.board_id:>5} {m.f_floor:>8.4g} {m.f_max:>7.4g} "
-                     f"{m.K:>7.4g}  {len(m.path)} on {links}")
+                     f"{m.K:>7.4g}  {route}")
     lines += ["", f"moment arms r = -dl/dtheta in mm over {len(report.poses)} poses "
               "(centre, corners, random); r > 0 turns the joint towards positive angles:"]
     width = max(14, *(len(j) for j in arm.joints))
@@ -60,6 +49,57 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[s
         lines.append("  " + f"{m:<14}" + "".join(f"{c:>{width + 2}}" for c in cells))
     lines += ["", *both_ways_lines(arm, report, max_poses)]
     return lines
+
+
+def _urdf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], list[str]]:
+    """URDF + via points: source lines, joint types, locked joints, each muscle's via points."""
+    robot = arm.robot
+    text = robot.urdf_path.read_text()
+    urdf = parse_joints(robot.urdf_path, text)
+    source = [f"  URDF {robot.urdf_path}",
+              f"  total mass {sum(link_masses(text).values()):.4g} kg "
+              f"({arm.backend.moving_mass():.4g} kg moved by the driven joints)"]
+    locked = []
+    for name, value in robot.locked:
+        leader = urdf[name].mimic[0] if urdf[name].mimic else None
+        how = ("" if leader is None else f" (mimic of {leader})" if leader in urdf
+               else f" (mimic of {leader}, which is not a joint of the URDF)")
+        locked.append(f"  {name:<22} {urdf[name].type:<10} at {value:.4g}{how}")
+    for name, leader, m, c in robot.followers:
+        locked.append(f"  {name:<22} follows driven {leader}: q = {m:g}*{leader} + {c:g}")
+    routes = [f"{len(m.path)} on " + " > ".join(dict.fromkeys(v.link for v in m.path))
+              for m in robot.muscles]
+    return source, {j: urdf[j].type for j in arm.joints}, locked, routes
+
+
+def _mjcf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], list[str]]:
+    """MJCF: source lines (and the tendons that are not muscles), joint types, locked joints,
+    each muscle's tendon path (sites, wrapping geoms, pulleys) as MuJoCo compiled it."""
+    from pimbs_calibration.mjcf import read_mjcf
+
+    robot = arm.robot
+    mjcf = read_mjcf(robot.mjcf_path)
+    total = float(arm.backend.mj_model.body_mass.sum())
+    source = [f"  MJCF {robot.mjcf_path} (muscle lengths and moment arms from MuJoCo's "
+              "tendons)",
+              f"  total mass {total:.4g} kg ({arm.backend.moving_mass():.4g} kg moved by the "
+              "driven joints)"]
+    muscles = {m.name for m in robot.muscles}
+    unused = [t.name for t in mjcf.tendons if t.spatial and t.name not in muscles]
+    fixed = [t.name for t in mjcf.tendons if not t.spatial]
+    if unused:
+        source.append(f"  spatial tendons not used as muscles: {', '.join(unused)}")
+    if fixed:
+        source.append(f"  fixed tendons ignored (joint couplings, not muscles): "
+                      f"{', '.join(fixed)}")
+    kinds = {j.name: j.type for j in mjcf.joints}
+    locked = [f"  {name:<22} {kinds[name]:<10} at {value:.4g}" for name, value in robot.locked]
+    held = [j.name for j in mjcf.joints if j.type in ("ball", "free")]
+    if held:
+        locked.append(f"  {', '.join(held)}: ball/free, held at the model's qpos0")
+    tendons = {t.name: t for t in mjcf.tendons}
+    routes = [" > ".join(tendons[m.name].route) for m in robot.muscles]
+    return source, kinds, locked, routes
 
 
 def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:

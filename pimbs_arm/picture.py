@@ -35,10 +35,9 @@ def routing_figure(arm: ArmModel, poses: Sequence[tuple[str, np.ndarray]]):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    text = arm.robot.urdf_path.read_text()
-    urdf = parse_joints(arm.robot.urdf_path, text)
-    centres = link_centres(text)
-    parents = {j.parent for j in urdf.values()}
+    skeleton = _mjcf_skeleton(arm) if arm.backend.kind == "mjcf" else _urdf_skeleton(arm)
+    edges, joint_link, centres = skeleton
+    parents = {parent for parent, _ in edges}
     fig = plt.figure(figsize=(7.5 * len(poses), 7.5), layout="constrained")
     colours = plt.get_cmap("tab10" if arm.n_muscles <= 10 else "tab20")
     anchors: list[tuple[object, list[tuple[np.ndarray, str, object, float, str]]]] = []
@@ -47,8 +46,8 @@ def routing_figure(arm: ArmModel, poses: Sequence[tuple[str, np.ndarray]]):
         frames = arm.link_frames(theta)
         origins = {name: p for name, (_, p) in frames.items()}
         points = arm.via_points(theta)
-        bones = [(origins[j.parent], origins[j.child]) for j in urdf.values()
-                 if j.parent in origins and j.child in origins]
+        bones = [(origins[parent], origins[child]) for parent, child in edges
+                 if parent in origins and child in origins]
         # a link with no child ends at twice its centre of mass (a forearm, a hand)
         bones += [(p, p + 2 * rot @ centres[name]) for name, (rot, p) in frames.items()
                   if name not in parents and name in centres]
@@ -58,7 +57,7 @@ def routing_figure(arm: ArmModel, poses: Sequence[tuple[str, np.ndarray]]):
                     zorder=1)
         at: dict[tuple, list[str]] = {}  # joints at one place (a 2-axis shoulder) share a label
         for name in arm.joints:
-            at.setdefault(tuple(np.round(origins[urdf[name].child], 4)), []).append(name)
+            at.setdefault(tuple(np.round(origins[joint_link[name]], 4)), []).append(name)
         todo = []
         for p, names in at.items():
             ax.scatter(*p, s=60, color="black", depthshade=False, zorder=3)
@@ -98,6 +97,31 @@ def _label(fig, anchors) -> None:
                                 weight))
         place_labels(fig, ax, labels, obstacles, ax.get_window_extent(renderer))
     fig.set_layout_engine("none")
+
+
+Skeleton = tuple[list[tuple[str, str]], dict[str, str], dict[str, np.ndarray]]
+
+
+def _urdf_skeleton(arm: ArmModel) -> Skeleton:
+    """(parent, child) link pairs, each driven joint's child link, link centres of mass."""
+    text = arm.robot.urdf_path.read_text()
+    urdf = parse_joints(arm.robot.urdf_path, text)
+    return ([(j.parent, j.child) for j in urdf.values()],
+            {name: urdf[name].child for name in arm.joints}, link_centres(text))
+
+
+def _mjcf_skeleton(arm: ArmModel) -> Skeleton:
+    """The same for an MJCF: its body tree, the body each driven joint moves, body centres."""
+    from pimbs_calibration.mjcf import joint_names
+
+    backend = arm.backend
+    model = backend.mj_model
+    names = joint_names(model)
+    bodies = {b: model.body(b).name or f"body{b}" for b in range(model.nbody)}
+    joint_link = {j: bodies[int(model.jnt_bodyid[names.index(j)])] for j in arm.joints}
+    centres = {bodies[b]: np.array(model.body_ipos[b]) for b in range(1, model.nbody)}
+    edges = [(parent, child) for child, parent in backend.body_parents().items()]
+    return edges, joint_link, centres
 
 
 def _equal_axes(ax, points: np.ndarray) -> None:

@@ -32,7 +32,9 @@ def prior_arrays(arm) -> dict[str, np.ndarray]:  # arm: pimbs_calibration.ArmMod
     """Constants of the geometric model, from pinocchio (joint 0 is the fixed world)."""
     if arm.backend.kind != "urdf":
         raise PriorUnavailable(f"{arm.robot.name} is an MJCF robot whose tendons MuJoCo "
-                               "routes; the geometric prior needs a URDF with via points")
+                               "routes, and the prior is a tensor model of via points on a "
+                               "URDF; the schema learns the whole length map from the data "
+                               "instead")
     vb = arm.backend  # the via-point backend holds the pinocchio model and the via points
     model = vb._model
     nj = model.njoints

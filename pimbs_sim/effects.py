@@ -79,10 +79,8 @@ class Effect:
     # -- the three places an effect acts ------------------------------------------------
     def physics(self, arm: ArmModel) -> ArmModel:
         """The true arm: the model arm changed where this effect changes physics."""
-        if self.name in ("link_mass", "routing") and arm.backend.kind != "urdf":
-            raise EffectSpecError(
-                f"effect {self.name} changes a URDF's masses or via points; {arm.robot.name} "
-                "is an MJCF robot: write the changed arm as a second MJCF instead")
+        if self.name in ("link_mass", "routing") and arm.backend.kind == "mjcf":
+            return self._mjcf_physics(arm)
         if self.name == "link_mass":
             return _with_link_mass(arm, self.link or _last_link(arm), self.magnitude)
         if self.name == "elastic_stiffness":
@@ -96,6 +94,21 @@ class Effect:
             return _with_via_point_shifts(arm, rng.normal(0.0, self.magnitude,
                                                           arm.backend._via_local.shape))
         return arm
+
+    def _mjcf_physics(self, arm: ArmModel) -> ArmModel:
+        """link_mass and routing on an MJCF arm: a body's mass, or the tendons' sites moved
+        (the MuJoCo backend measures the changed model as it does the description)."""
+        backend = arm.backend
+        if self.name == "link_mass":
+            try:
+                changed = backend.with_body_mass(self.link or backend.last_body(),
+                                                 self.magnitude)
+            except ValueError as exc:
+                raise EffectSpecError(f"link_mass: {exc}") from exc
+            return arm.with_backend(changed)
+        rng = np.random.default_rng([self.seed, 77])
+        shifts = rng.normal(0.0, self.magnitude, (len(backend.muscle_sites()), 3))
+        return arm.with_backend(backend.with_site_shifts(shifts))
 
     def true_pose(self, arm: ArmModel, theta_cmd: np.ndarray) -> np.ndarray:
         """Where the arm really is when the (possibly offset) joint sensor says θ_cmd."""

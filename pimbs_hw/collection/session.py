@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -39,8 +40,9 @@ class ConnectError(HardwareError):
 @contextlib.contextmanager
 def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
               conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0,
-              zero_m=None) -> Iterator[DriverLink]:
-    """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``).
+              zero_m=None, plant: Path | None = None) -> Iterator[DriverLink]:
+    """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``; with
+    ``plant``, an MJCF that MuJoCo integrates as that arm).
 
     On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
     """
@@ -49,7 +51,8 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed, zero_m=zero_m))
+                speed=speed, zero_m=zero_m,
+                mock_options=None if plant is None else {"plant": plant}))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "

@@ -5,7 +5,8 @@ any port a CAN transport accepts, e.g. ``vcan0`` across processes on one host) o
 a pty (``link="pty"``; the driver opens ``mock.port``), or behind an emulated SLCAN USB-CAN
 adapter on a pty (``link="slcan"``; ``mock.port`` is ``slcan:/dev/pts/N`` for python-can).
 Behind the boards is ``Plant``: the arm model's static equilibrium with first-order
-settling, noisy sensors, load heating, an optional concealed effect (``effects.py``) and
+settling (or, with ``plant=arm.xml``, ``MujocoPlant``: MuJoCo's dynamics), noisy sensors,
+load heating, an optional concealed effect (``effects.py``) and
 injected faults (``faults.py``).
 
     with MockArm(robot, "virtual:demo", speed=10, faults=["overheat:m1@3"]) as mock:
@@ -86,7 +87,8 @@ class MockArm:
     def __init__(self, robot, link: str = "virtual", *, model=None, effect=None,
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
-                 encoder_offset_m=None, winding=None) -> None:
+                 encoder_offset_m=None, winding=None,
+                 plant: Path | str | None = None) -> None:
         from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
@@ -103,8 +105,19 @@ class MockArm:
         self.noise = noise
         self.tick_s, self.status_period_s = tick_s, status_period_s
         m = len(self.muscles)
-        self.plant = Plant(self.model, speed=speed,
-                           ambient_c=25.0 + (self.rng.normal(0, 0.5, m) if noise else 0.0))
+        ambient = 25.0 + (self.rng.normal(0, 0.5, m) if noise else 0.0)
+        if plant is None:
+            self.plant = Plant(self.model, speed=speed, ambient_c=ambient)
+        else:  # MuJoCo integrates the arm (``plant`` is an MJCF, the "real" arm)
+            from pimbs_hw.mock.mujoco_plant import MujocoPlant
+
+            body = [e.name for e in self.effects.effects
+                    if getattr(e, "name", None) in ("link_mass", "routing")]
+            if body:
+                raise ValueError(f"--conceal {body[0]} changes the description's body, but with "
+                                 f"--plant {plant} the plant MJCF is the true arm: make that "
+                                 "change in the plant file")
+            self.plant = MujocoPlant(Path(plant), self.model, speed=speed, ambient_c=ambient)
         now = time.monotonic()
         # incremental encoders power up anywhere: the host must zero them (``pimbs zero``)
         self.encoder_offset_m = (np.zeros(m) if encoder_offset_m is None

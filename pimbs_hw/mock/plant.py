@@ -28,6 +28,16 @@ class PlantState:
     approach: np.ndarray  # (M,) friction state in [-1, 1]: +1 paid out last, -1 pulled in
 
 
+def thermal_step(temperature: np.ndarray, tension: np.ndarray, ambient_c: np.ndarray,
+                 heat_c_per_n: float, heat_rate_c_per_s: np.ndarray, dt_arm: float,
+                 dt: float, tau_thermal_s: float) -> np.ndarray:
+    """Motor temperatures after ``dt_arm`` s of arm time: first-order toward ambient plus
+    heating with load; injected heating (a fault) runs on wall time ``dt``."""
+    b = 1.0 - np.exp(-dt_arm / tau_thermal_s)
+    hot = ambient_c + heat_c_per_n * np.abs(tension)
+    return temperature + b * (hot - temperature) + heat_rate_c_per_s * dt
+
+
 class _Solver:
     """Latest-request-wins equilibrium solver thread."""
 
@@ -157,9 +167,8 @@ class Plant:
         a = 1.0 - np.exp(-dt_arm / self.tau_s)
         length = s.length + a * (target.length - s.length)
         approach = self._play.update(length)
-        b = 1.0 - np.exp(-dt_arm / self.tau_thermal_s)
-        hot = self.ambient_c + self.heat_c_per_n * np.abs(s.tension)
-        temperature = s.temperature + b * (hot - s.temperature) + self.heat_rate_c_per_s * dt
+        temperature = thermal_step(s.temperature, s.tension, self.ambient_c, self.heat_c_per_n,
+                                   self.heat_rate_c_per_s, dt_arm, dt, self.tau_thermal_s)
         self.state = replace(s, theta=s.theta + a * (target.theta - s.theta),
                              tension=s.tension + a * (target.tension - s.tension),
                              length=length, temperature=temperature, approach=approach)

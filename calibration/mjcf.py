@@ -1,0 +1,174 @@
+"""What an MJCF (MuJoCo's XML) says about a tendon-driven arm: joints, tendons, actuator limits.
+
+An arm already described in MuJoCo should not have to be re-typed as via points: its spatial
+tendons (through sites, wrapping around spheres and cylinders, split by pulleys) are the
+muscles, its hinge joints the joints they drive. This module only reads the file, compiled by
+MuJoCo itself (so ``<default>`` classes, ``<include>``, degrees vs radians and every other
+MJCF rule mean what MuJoCo says they mean); ``description.py`` turns what it finds into a
+``RobotDescription`` and MuJoCo measures the tendons (``pimbs_arm.backends.mujoco_tendons``).
+
+Unnamed objects get the names MuJoCo's own viewer would show them by: ``joint<i>``,
+``tendon<i>`` (index in file order). ``MjcfError`` names the file and what to do.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+_JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball",
+                int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
+                int(mujoco.mjtJoint.mjJNT_HINGE): "hinge"}
+_WRAP_NAMES = {int(mujoco.mjtWrap.mjWRAP_SITE): "site", int(mujoco.mjtWrap.mjWRAP_SPHERE): "sphere",
+               int(mujoco.mjtWrap.mjWRAP_CYLINDER): "cylinder",
+               int(mujoco.mjtWrap.mjWRAP_PULLEY): "pulley"}
+
+
+class MjcfError(ValueError):
+    """An MJCF cannot serve as a robot description; the message names the file and the fix."""
+
+    def __init__(self, path: Path, problem: str, fix: str) -> None:
+        self.path, self.problem, self.fix = Path(path), problem, fix
+        super().__init__(f"{self.path}: {problem}. {fix}")
+
+
+@dataclass(frozen=True)
+class MjcfJoint:
+    """One joint of the compiled model (angles in rad whatever ``<compiler angle>`` says)."""
+
+    name: str
+    type: str  # hinge | slide | ball | free
+    limited: bool
+    range: tuple[float, float]  # (lo, hi); meaningless unless limited
+    qpos0: float  # reference position of a hinge/slide (where it is locked if not driven)
+
+
+@dataclass(frozen=True)
+class MjcfTendon:
+    """One tendon: spatial ones can be muscles; fixed ones (joint couplings) cannot."""
+
+    name: str
+    spatial: bool
+    route: tuple[str, ...]  # "site a", "cylinder pulley_geom", "pulley /2", ... in file order
+    force_limit: float | None  # largest |forcerange| of a force-limited actuator on it, N
+    length_range: tuple[float, float] | None  # the tendon's own length limits (m), if limited
+
+
+@dataclass(frozen=True)
+class MjcfArm:
+    """The parts of an MJCF that a robot description is built from."""
+
+    path: Path
+    name: str  # <mujoco model="..."> (MuJoCo's default "MuJoCo Model" -> the file stem)
+    joints: tuple[MjcfJoint, ...]
+    tendons: tuple[MjcfTendon, ...]
+
+    def hinge_names(self) -> list[str]:
+        return [j.name for j in self.joints if j.type == "hinge"]
+
+    def spatial_names(self) -> list[str]:
+        return [t.name for t in self.tendons if t.spatial]
+
+
+def is_mjcf(path: Path) -> bool:
+    """True for a readable ``.xml`` whose root element is ``<mujoco>`` (a URDF's is ``<robot>``)."""
+    if path.suffix.lower() != ".xml" or not path.is_file():
+        return False
+    try:
+        for _, element in ET.iterparse(path, events=("start",)):
+            return element.tag == "mujoco"
+    except (ET.ParseError, OSError):
+        return False
+    return False
+
+
+def compile_model(path: Path) -> mujoco.MjModel:
+    """MuJoCo's compiled model of an MJCF file; its parse/compile errors become one line.
+
+    The muscle actuators' length ranges are not computed (``<compiler><lengthrange
+    mode="none">``): PIMBS's muscles are the tendons, driven by its boards, not MJCF
+    actuators, and that computation (a simulation per actuator) can fail to converge on a
+    model that is otherwise fine.
+    """
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+        options = getattr(spec.compiler, "LRopt", None)
+        if options is not None:
+            options.mode = mujoco.mjtLRMode.mjLRMODE_NONE
+        return spec.compile()
+    except ValueError as exc:  # MuJoCo: "XML Error: ... Element 'x', line n"
+        problem = " ".join(str(exc).split())
+        raise MjcfError(path, f"MuJoCo cannot load this MJCF ({problem})",
+                        "Fix the file so that MuJoCo's own viewer opens it") from exc
+
+
+def joint_names(model: mujoco.MjModel) -> list[str]:
+    return [model.joint(i).name or f"joint{i}" for i in range(model.njnt)]
+
+
+def tendon_names(model: mujoco.MjModel) -> list[str]:
+    return [model.tendon(i).name or f"tendon{i}" for i in range(model.ntendon)]
+
+
+def read_mjcf(path: Path) -> MjcfArm:
+    """Compile ``path`` and list its joints and tendons. Raises ``MjcfError``."""
+    model = compile_model(path)
+    joints = []
+    for i, name in enumerate(joint_names(model)):
+        kind = _JOINT_TYPES[int(model.jnt_type[i])]
+        qpos0 = float(model.qpos0[model.jnt_qposadr[i]]) if kind in ("hinge", "slide") else 0.0
+        lo, hi = (float(v) for v in model.jnt_range[i])
+        joints.append(MjcfJoint(name=name, type=kind, limited=bool(model.jnt_limited[i]),
+                                range=(lo, hi), qpos0=qpos0))
+    limits = _actuator_force_limits(model)
+    tendons = []
+    for i, name in enumerate(tendon_names(model)):
+        types = model.wrap_type[model.tendon_adr[i]:model.tendon_adr[i] + model.tendon_num[i]]
+        spatial = int(types[0]) != int(mujoco.mjtWrap.mjWRAP_JOINT)
+        length_range = (tuple(float(v) for v in model.tendon_range[i])
+                        if model.tendon_limited[i] else None)
+        tendons.append(MjcfTendon(name=name, spatial=spatial,
+                                  route=_route(model, i) if spatial else (),
+                                  force_limit=limits.get(i), length_range=length_range))
+    return MjcfArm(path=path, name=_model_name(path, model), joints=tuple(joints),
+                   tendons=tuple(tendons))
+
+
+def _model_name(path: Path, model: mujoco.MjModel) -> str:
+    name = model.names[:model.names.index(b"\0")].decode()  # the model name comes first
+    return path.stem if name in ("", "MuJoCo Model") else name
+
+
+def _route(model: mujoco.MjModel, tendon: int) -> tuple[str, ...]:
+    """The tendon's path in words: the sites it runs through, the geoms it wraps, pulleys."""
+    out = []
+    start = model.tendon_adr[tendon]
+    for k in range(start, start + model.tendon_num[tendon]):
+        kind = _WRAP_NAMES.get(int(model.wrap_type[k]), "?")
+        obj = int(model.wrap_objid[k])
+        if kind == "site":
+            out.append(f"site {model.site(obj).name or obj}")
+        elif kind == "pulley":
+            out.append(f"pulley /{model.wrap_prm[k]:g}")
+        else:
+            out.append(f"{kind} {model.geom(obj).name or obj}")
+    return tuple(out)
+
+
+def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
+    """Tendon id -> the largest |force| a force-limited actuator on it may apply (N)."""
+    limits: dict[int, float] = {}
+    for a in range(model.nu):
+        if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_TENDON):
+            continue
+        if not model.actuator_forcelimited[a]:
+            continue
+        tendon = int(model.actuator_trnid[a, 0])
+        bound = float(np.abs(model.actuator_forcerange[a]).max())
+        if bound > 0:
+            limits[tendon] = max(limits.get(tendon, 0.0), bound)
+    return limits

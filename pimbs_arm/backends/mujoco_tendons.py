@@ -1,0 +1,252 @@
+"""MJCF + spatial tendons: muscle geometry and gravity measured by MuJoCo itself.
+
+The arm backend (see ``pimbs_arm.backend``) of a robot described by an MJCF: every muscle is a
+spatial tendon, so its length and Jacobian are MuJoCo's ``ten_length`` and ``ten_J`` after
+``mj_kinematics`` + ``mj_comPos`` + ``mj_tendon`` (the position stage of ``mj_forward``,
+without collision detection), and sphere/cylinder wrapping and pulleys are exactly what
+MuJoCo computes, not a re-implementation. Gravity is the bias force MuJoCo stores in
+``qfrc_bias`` (``mj_rne`` without acceleration) at zero joint velocity: the torque that holds
+the arm still, the same sign as pinocchio's g(theta). What MuJoCo does not provide is taken by
+central finite differences of its exact first derivatives: the length Hessian (from ``ten_J``)
+and the gravity derivative (from ``qfrc_bias``); the equilibrium solver uses them only to
+choose Newton steps, its stopping test is on the exact gradient.
+
+Joints that are not driven stay at their locked value (the description's ``locked``, default
+``qpos0``); ball and free joints stay at ``qpos0``.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+
+import mujoco
+import numpy as np
+
+from pimbs_arm.backend import Kinematics
+from pimbs_calibration.description import RobotDescription
+from pimbs_calibration.mjcf import compile_model, joint_names, tendon_names
+from pimbs_calibration.urdf_model import UNLIMITED
+
+_FD_STEP = 1e-6  # rad: central differences of ten_J / qfrc_bias (error ~ step² and 1e-10)
+_PULLEY = -2  # wrap_obj of a pulley entry in MuJoCo's wrap list (it has no point)
+
+
+class MujocoBackend:
+    """MuJoCo's model of an MJCF description whose spatial tendons are the muscles."""
+
+    kind = "mjcf"
+
+    def __init__(self, robot: RobotDescription, model: mujoco.MjModel | None = None) -> None:
+        if robot.mjcf_path is None:
+            raise ValueError(f"{robot.muscle_path}: not an MJCF description")
+        self.robot = robot
+        self.joints = robot.joints
+        self.n_joints = len(robot.joints)
+        self.n_muscles = len(robot.muscles)
+        self.mj_model = compile_model(robot.mjcf_path) if model is None else model
+        self._setup()
+
+    def _setup(self) -> None:
+        m = self.mj_model
+        names = joint_names(m)
+        jid = np.array([names.index(j) for j in self.joints], dtype=int)
+        self._qadr = m.jnt_qposadr[jid]
+        self._dof = m.jnt_dofadr[jid]
+        tendons = tendon_names(m)
+        self._tendon = np.array([tendons.index(mu.name) for mu in self.robot.muscles], dtype=int)
+        self._q0 = m.qpos0.copy()
+        for name, value in self.robot.locked:
+            self._q0[m.jnt_qposadr[names.index(name)]] = value
+        limited = m.jnt_limited[jid].astype(bool)
+        self.joint_limits = np.where(limited[:, None], m.jnt_range[jid],
+                                     np.array([-UNLIMITED, UNLIMITED]))
+        self._data = mujoco.MjData(m)
+        # MuJoCo writes its results into _data: serialise users (the mock bus solves in a
+        # thread while other threads may query the same model).
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict:
+        """Pickle support (worker processes): the scratch data and the lock are rebuilt."""
+        state = self.__dict__.copy()
+        del state["_lock"], state["_data"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._data = mujoco.MjData(self.mj_model)
+        self._lock = threading.Lock()
+
+    def fresh(self, model: mujoco.MjModel | None = None) -> MujocoBackend:
+        """A copy with its own scratch data and lock, optionally on another compiled model
+        (the same MJCF with, e.g., a link mass changed)."""
+        other = object.__new__(MujocoBackend)
+        other.__setstate__({**self.__getstate__(), "mj_model": model or self.mj_model})
+        return other
+
+    def with_body_mass(self, body: str, scale: float) -> MujocoBackend:
+        """A copy whose ``body`` (a moving body of the MJCF) weighs ``scale`` times as much,
+        same centre of mass (its inertia scaled with it). Raises ``ValueError``."""
+        m = self.mj_model
+        names = {m.body(b).name: b for b in self.moving_bodies()}
+        if body not in names or m.body_mass[names[body]] <= 0:
+            raise ValueError(f"'{body}' is not a body with mass that a driven joint moves in "
+                             f"{self.robot.mjcf_path.name} (those: "
+                             f"{', '.join(n for n, b in names.items() if m.body_mass[b] > 0)})")
+        other = copy.deepcopy(m)
+        other.body_mass[names[body]] *= scale
+        other.body_inertia[names[body]] *= scale
+        return self.fresh(other)
+
+    def last_body(self) -> str:
+        """The heaviest body the last driven joint carries (the forearm, the hand...)."""
+        m = self.mj_model
+        joint = joint_names(m).index(self.joints[-1])
+        carrier = int(m.jnt_bodyid[joint])
+        return m.body(carrier).name or f"body{carrier}"
+
+    def muscle_sites(self) -> np.ndarray:
+        """Ids of the sites the muscles' tendons run through, in first-use order."""
+        m = self.mj_model
+        sites: list[int] = []
+        for t in self._tendon:
+            for k in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]):
+                if int(m.wrap_type[k]) == int(mujoco.mjtWrap.mjWRAP_SITE):
+                    if int(m.wrap_objid[k]) not in sites:
+                        sites.append(int(m.wrap_objid[k]))
+        return np.array(sites, dtype=int)
+
+    def with_site_shifts(self, shifts: np.ndarray) -> MujocoBackend:
+        """A copy whose muscle sites (``muscle_sites`` order) sit ``shifts`` (S, 3) metres from
+        the model's, in their bodies' frames: a routing the description got wrong."""
+        other = copy.deepcopy(self.mj_model)
+        other.site_pos[self.muscle_sites()] += np.asarray(shifts, dtype=np.float64)
+        return self.fresh(other)
+
+    # ----------------------------------------------------------------------- MuJoCo passes
+    def _position(self, theta: np.ndarray) -> mujoco.MjData:
+        """Run MuJoCo's position stage at theta (caller holds the lock)."""
+        d = self._data
+        d.qpos[:] = self._q0
+        d.qpos[self._qadr] = theta
+        d.qvel[:] = 0.0
+        mujoco.mj_kinematics(self.mj_model, d)
+        mujoco.mj_comPos(self.mj_model, d)
+        mujoco.mj_tendon(self.mj_model, d)
+        return d
+
+    def _ten_j(self, d: mujoco.MjData) -> np.ndarray:
+        """``ten_J`` (M, N) of the muscles' tendons and the driven dofs. MuJoCo stores it
+        sparse (rows of the model's ``ten_J_rowadr``/``rownnz``/``colind``) or, in older
+        releases, dense (ntendon, nv): both are read."""
+        m = self.mj_model
+        values = np.asarray(d.ten_J).reshape(-1)
+        if not hasattr(m, "ten_J_rowadr"):
+            return values.reshape(m.ntendon, m.nv)[np.ix_(self._tendon, self._dof)]
+        dense = np.zeros((m.ntendon, m.nv))
+        for t in self._tendon:
+            adr, nnz = m.ten_J_rowadr[t], m.ten_J_rownnz[t]
+            dense[t, m.ten_J_colind[adr:adr + nnz]] = values[adr:adr + nnz]
+        return dense[np.ix_(self._tendon, self._dof)]
+
+    def kinematics(self, theta: np.ndarray, jacobian: bool = True) -> Kinematics:
+        """MuJoCo's absolute tendon lengths (M,) and, if asked, ``ten_J`` (M, N)."""
+        theta = np.asarray(theta, dtype=np.float64)
+        with self._lock:
+            d = self._position(theta)
+            length = np.array(d.ten_length[self._tendon])
+            G = self._ten_j(d) if jacobian else None
+        return Kinematics(length, G)
+
+    def length_hessian(self, theta: np.ndarray, weight: np.ndarray, cache=None) -> np.ndarray:
+        """sum_i weight_i d²length_i/dtheta² (N, N) by central differences of ``ten_J``
+        (MuJoCo has no second derivative of its wrapping)."""
+        theta = np.asarray(theta, dtype=np.float64)
+        H = np.empty((self.n_joints, self.n_joints))
+        with self._lock:
+            for k in range(self.n_joints):
+                step = np.zeros(self.n_joints)
+                step[k] = _FD_STEP
+                up = self._ten_j(self._position(theta + step))
+                down = self._ten_j(self._position(theta - step))
+                H[:, k] = weight @ (up - down) / (2 * _FD_STEP)
+        return 0.5 * (H + H.T)
+
+    def gravity(self, theta: np.ndarray) -> np.ndarray:
+        """MuJoCo's bias force at zero velocity on the driven joints: g(theta)."""
+        with self._lock:
+            return self._bias(np.asarray(theta, dtype=np.float64))
+
+    def _bias(self, theta: np.ndarray) -> np.ndarray:
+        """``qfrc_bias`` with qvel = 0 (gravity only) at theta, on the driven dofs."""
+        m, d = self.mj_model, self._position(theta)
+        mujoco.mj_comVel(m, d)  # qvel = 0: zero velocities, as mj_fwdVelocity would leave
+        mujoco.mj_rne(m, d, 0, d.qfrc_bias)  # what mj_fwdVelocity stores in qfrc_bias
+        return np.array(d.qfrc_bias[self._dof])
+
+    def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
+        """d g / d theta (N, N) by central differences of ``qfrc_bias``."""
+        theta = np.asarray(theta, dtype=np.float64)
+        D = np.empty((self.n_joints, self.n_joints))
+        with self._lock:
+            for k in range(self.n_joints):
+                step = np.zeros(self.n_joints)
+                step[k] = _FD_STEP
+                D[:, k] = (self._bias(theta + step) - self._bias(theta - step)) / (2 * _FD_STEP)
+        return D
+
+    def potential_energy(self, theta: np.ndarray) -> float:
+        """-sum_b m_b gravity . com_b (J): its gradient is ``gravity``."""
+        m = self.mj_model
+        with self._lock:
+            d = self._position(np.asarray(theta, dtype=np.float64))
+            return float(-(m.body_mass[1:] * (d.xipos[1:] @ m.opt.gravity)).sum())
+
+    def moving_mass(self) -> float:
+        """Mass (kg) of the bodies that some driven joint moves."""
+        return float(self.mj_model.body_mass[self.moving_bodies()].sum())
+
+    def moving_bodies(self) -> np.ndarray:
+        """Ids of the bodies carried by a driven joint (their subtrees)."""
+        m = self.mj_model
+        carriers = set(m.jnt_bodyid[[joint_names(m).index(j) for j in self.joints]].tolist())
+        moving = []
+        for b in range(1, m.nbody):
+            a = b
+            while a > 0 and a not in carriers:
+                a = int(m.body_parentid[a])
+            if a > 0:
+                moving.append(b)
+        return np.array(moving, dtype=int)
+
+    # ------------------------------------------------------------------------- for plots
+    def via_points(self, theta: np.ndarray) -> list[np.ndarray]:
+        """World positions (k_i, 3) of each tendon's sites and wrap tangent points (m)."""
+        with self._lock:
+            d = self._position(np.asarray(theta, dtype=np.float64))
+            xpos = np.asarray(d.wrap_xpos).reshape(-1, 3)
+            obj = np.asarray(d.wrap_obj).reshape(-1)
+            out = []
+            for t in self._tendon:
+                sl = slice(d.ten_wrapadr[t], d.ten_wrapadr[t] + d.ten_wrapnum[t])
+                out.append(xpos[sl][obj[sl] != _PULLEY].copy())
+        return out
+
+    def link_frames(self, theta: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World (rotation (3, 3), position (3,)) of every body of the MJCF at a pose."""
+        m = self.mj_model
+        with self._lock:
+            d = self._position(np.asarray(theta, dtype=np.float64))
+            return {m.body(b).name or f"body{b}": (d.xmat[b].reshape(3, 3).copy(),
+                                                   d.xpos[b].copy())
+                    for b in range(1, m.nbody)}
+
+    def body_parents(self) -> dict[str, str]:
+        """Body name -> parent body name (the world omitted): the skeleton for a picture."""
+        m = self.mj_model
+
+        def name(b: int) -> str:
+            return m.body(b).name or f"body{b}"
+
+        return {name(b): name(int(m.body_parentid[b])) for b in range(1, m.nbody)
+                if m.body_parentid[b] > 0}

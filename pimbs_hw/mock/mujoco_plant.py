@@ -1,0 +1,219 @@
+"""MuJoCo as the true arm behind the simulated boards: real dynamics with ``mj_step``.
+
+The quasi-static plant (``plant.py``) jumps to the arm model's equilibrium and relaxes toward
+it; a real arm swings, overshoots, rubs and settles. This plant integrates an MJCF with
+MuJoCo (inertia, joint damping and armature, tendon friction loss and damping, wrapping, as
+the file says; its own actuators are disabled), each muscle a motor winding its tendon
+through the series elastic element of the description (f = exp(K·Δn) − 1, Δn = tendon
+length − motor length, slack pulls nothing). The loadcell reads that tension, the motor
+encoder the motor length, the joint encoders the joint angles: what the boards report,
+never the model's equilibrium.
+
+The plant MJCF may differ from the description (a pulley radius, a via point, a mass the
+description got wrong: the "real" arm); it must name the description's joints (hinges) and
+muscles (spatial tendons). Joints of the plant that the description does not drive are held
+at their reference ``qpos0`` (or the description's ``locked`` value).
+
+Length-mode motors follow their command with a first-order servo (``motor_tau_s``); a
+tension-mode board's force loop is modelled as a first-order lag to the commanded tension,
+the motor paying out or winding in whatever length that takes. The tension each substep is
+computed from the state after MuJoCo's position stage (``mj_step1``) and applied as the
+generalized force −Jᵀf before the integration (``mj_step2``), the split MuJoCo documents for
+forces that depend on the current state.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from pimbs_calibration.mjcf import MjcfError, compile_model, joint_names, tendon_names
+from pimbs_hw.mock.plant import PlantState, thermal_step
+from pimbs_recording.approach import FrictionPlay
+
+_EXP_CAP = 60.0  # cap K*dn: a tension beyond e^60 N is a broken simulation, not a number
+SETTLED_SPEED = 1e-3  # rad/s: joints slower than this for REST_S (motors at their targets)
+REST_S = 0.2  # s of arm time: a swing's turning point is slow only for an instant
+
+
+class PlantMismatch(ValueError):
+    """The plant MJCF does not fit the description (message names both and what is missing)."""
+
+
+class MujocoPlant:
+    """True arm state simulated by MuJoCo; the same interface as ``plant.Plant``."""
+
+    def __init__(self, xml: Path, model, *, speed: float = 1.0, motor_tau_s: float = 0.03,
+                 ambient_c: np.ndarray | float = 25.0, heat_c_per_n: float = 0.05,
+                 tau_thermal_s: float = 30.0, settle_s: float = 5.0) -> None:
+        self.model = model  # the description's ArmModel: muscles, joints, elastic law K
+        self.xml = Path(xml)
+        try:
+            self.mj = compile_model(self.xml)
+        except MjcfError as exc:
+            raise PlantMismatch(f"--plant {exc}") from exc
+        self._map(model.robot)
+        # the boards drive the tendons; actuators the MJCF may define are not part of the arm
+        self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        self.data = mujoco.MjData(self.mj)
+        self.speed, self.motor_tau_s, self.tau_thermal_s = speed, motor_tau_s, tau_thermal_s
+        m = model.n_muscles
+        self.K = np.asarray(model.K, dtype=np.float64)
+        self.ambient_c = np.broadcast_to(np.asarray(ambient_c, float), (m,)).copy()
+        self.heat_c_per_n = heat_c_per_n
+        self.heat_rate_c_per_s = np.zeros(m)  # injected heating (overheat fault)
+        self._J = np.zeros((self.mj.ntendon, self.mj.nv))
+        self._home = False
+        self._reset_locked()
+        mujoco.mj_fwdPosition(self.mj, self.data)
+        self._h0 = self.data.ten_length[self._tendon].copy()  # tendon lengths at theta = 0
+        # power-up: motors hold their length (l = 0), the arm sags onto its elastic elements
+        self._is_length = np.ones(m, dtype=bool)
+        self._command = np.zeros(m)
+        self._motor = np.zeros(m)  # motor length (m) of length-mode muscles
+        self._force = np.zeros(m)  # tension (N) of tension-mode muscles' force loop
+        self._tension = np.zeros(m)
+        self._lock = threading.Lock()
+        self._debt = 0.0  # arm time not yet simulated (less than one timestep)
+        self._rest_s = 0.0  # arm time the joints have been slow for
+        self._play = FrictionPlay(m)
+        self._advance(settle_s, until_rest=True)
+        self.state = PlantState(self._theta(), self._tension.copy(), self._length(),
+                                self.ambient_c.copy(), np.zeros(m))
+        self._play.update(self.state.length)
+
+    def _map(self, robot) -> None:
+        """Plant joints and tendons by the description's names; a clear line if missing."""
+        joints, tendons = joint_names(self.mj), tendon_names(self.mj)
+        hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
+        bad = [j for j in robot.joints
+               if j not in joints or int(self.mj.jnt_type[joints.index(j)]) != hinge]
+        if bad:
+            raise PlantMismatch(
+                f"--plant {self.xml}: no hinge joint named {', '.join(bad)} (the description "
+                f"{robot.muscle_path} drives {', '.join(robot.joints)}); name the plant's "
+                "joints as the description does")
+        muscles = [mu.name for mu in robot.muscles]
+        missing = [t for t in muscles if t not in tendons]
+        if missing:
+            raise PlantMismatch(
+                f"--plant {self.xml}: no tendon named {', '.join(missing)} (the description "
+                f"{robot.muscle_path} has muscles {', '.join(muscles)}); name one spatial "
+                "tendon of the plant after each muscle")
+        jid = [joints.index(j) for j in robot.joints]
+        self._qadr = self.mj.jnt_qposadr[jid]
+        self._dof = self.mj.jnt_dofadr[jid]
+        self._tendon = np.array([tendons.index(t) for t in muscles], dtype=int)
+        self._q0 = self.mj.qpos0.copy()
+        for name, value in robot.locked:
+            if name in joints:
+                self._q0[self.mj.jnt_qposadr[joints.index(name)]] = value
+        driven_q, driven_v = set(self._qadr.tolist()), set(self._dof.tolist())
+        self._locked_q = np.array([q for q in range(self.mj.nq) if q not in driven_q], int)
+        self._locked_v = np.array([v for v in range(self.mj.nv) if v not in driven_v], int)
+
+    # ------------------------------------------------------------------- the simulation
+    def _reset_locked(self) -> None:
+        """Joints the description does not drive are held rigid at their locked value."""
+        d = self.data
+        if len(self._locked_q):
+            d.qpos[self._locked_q] = self._q0[self._locked_q]
+        if len(self._locked_v):
+            d.qvel[self._locked_v] = 0.0
+        if self._home:
+            d.qpos[self._qadr] = 0.0
+            d.qvel[self._dof] = 0.0
+
+    def _substep(self) -> None:
+        """One MuJoCo timestep: motors, elastic elements, tendon forces, integration."""
+        m, d = self.mj, self.data
+        dt = m.opt.timestep
+        a = 1.0 - np.exp(-dt / self.motor_tau_s)
+        self._motor += a * np.where(self._is_length, self._command - self._motor, 0.0)
+        self._force += a * np.where(self._is_length, 0.0, self._command - self._force)
+        mujoco.mj_step1(m, d)
+        h = d.ten_length[self._tendon] - self._h0
+        dn = np.minimum(self.K * np.maximum(h - self._motor, 0.0), _EXP_CAP)
+        self._tension = np.where(self._is_length, np.expm1(dn), np.maximum(self._force, 0.0))
+        mujoco.mju_sparse2dense(self._J, d.ten_J, m.ten_J_rownnz, m.ten_J_rowadr,
+                                m.ten_J_colind)
+        d.qfrc_applied[:] = -self._J[self._tendon].T @ self._tension
+        mujoco.mj_step2(m, d)
+        self._reset_locked()
+        self._rest_s = self._rest_s + dt if self._slow() else 0.0
+
+    def _advance(self, arm_s: float, until_rest: bool = False) -> None:
+        """Simulate ``arm_s`` seconds of arm time (or until the arm is at rest)."""
+        dt = self.mj.opt.timestep
+        self._debt += arm_s
+        n = int(self._debt / dt)
+        self._debt -= n * dt
+        for _ in range(n):
+            self._substep()
+            if until_rest and self._at_rest():
+                self._debt = 0.0
+                return
+
+    def _slow(self) -> bool:
+        return bool(np.abs(self.data.qvel[self._dof]).max(initial=0.0) < SETTLED_SPEED)
+
+    def _at_rest(self) -> bool:
+        """Joints slow for the last ``REST_S`` of arm time."""
+        return self._rest_s >= REST_S
+
+    def _theta(self) -> np.ndarray:
+        return np.array(self.data.qpos[self._qadr])
+
+    def _length(self) -> np.ndarray:
+        """Motor lengths: the servo's position, or what a tension loop wound to (h − Δn)."""
+        h = self.data.ten_length[self._tendon] - self._h0
+        stretch = np.log1p(np.maximum(self._tension, 0.0)) / self.K
+        return np.where(self._is_length, self._motor, h - stretch)
+
+    # ------------------------------------------------------------ the Plant interface
+    def command(self, modes: tuple[str, ...], values: np.ndarray) -> None:
+        """New motor targets (per muscle "length" [m] or "tension" [N])."""
+        with self._lock:
+            is_length = np.array([mode == "length" for mode in modes])
+            # a muscle switching mode starts from where it is (no jump)
+            became_length = is_length & ~self._is_length
+            self._motor[became_length] = self._length()[became_length]
+            became_tension = ~is_length & self._is_length
+            self._force[became_tension] = self._tension[became_tension]
+            self._is_length = is_length
+            self._command = np.array(values, dtype=np.float64)
+
+    def hold_home(self, on: bool = True) -> None:
+        """Hold (or let go of) the arm at its home pose, as a person zeroing it would."""
+        with self._lock:
+            self._home = on
+            self._reset_locked()
+
+    def settled(self, tol: float = 1e-4) -> bool:
+        """Joints at rest and every motor within ``tol`` (m) or 0.05 N of its target."""
+        with self._lock:
+            motor_ok = np.where(self._is_length, np.abs(self._motor - self._command) < tol,
+                                np.abs(self._force - self._command) < 0.05)
+            return bool(motor_ok.all()) and self._at_rest()
+
+    def step(self, dt: float) -> PlantState:
+        """Advance ``dt`` seconds of wall time (× ``speed`` of arm time)."""
+        with self._lock:
+            dt_arm = dt * self.speed
+            self._advance(dt_arm)
+            s = self.state
+            length = self._length()
+            temperature = thermal_step(s.temperature, s.tension, self.ambient_c,
+                                       self.heat_c_per_n, self.heat_rate_c_per_s,
+                                       dt_arm, dt, self.tau_thermal_s)
+            self.state = replace(s, theta=self._theta(), tension=self._tension.copy(),
+                                 length=length, temperature=temperature,
+                                 approach=self._play.update(length))
+            return self.state
+
+    def close(self) -> None:
+        """Nothing runs in the background."""

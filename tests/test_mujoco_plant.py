@@ -1,0 +1,135 @@
+"""MuJoCo as the true arm behind the simulated boards (`--plant FILE.xml`): real dynamics that
+come to rest where the statics say, a plant that differs from its description, a plant that
+does not fit it, and the boards reporting what the integrated arm does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pimbs_arm.model import ArmModel
+from pimbs_cli.main import main
+from pimbs_hw.mock.mujoco_plant import MujocoPlant, PlantMismatch
+
+ARMS = Path(__file__).resolve().parents[1] / "fixtures" / "mujoco"
+PLANAR, REAL = ARMS / "planar_2dof.xml", ARMS / "planar_2dof_real.xml"
+
+
+def _settle(plant: MujocoPlant, max_s: float = 20.0) -> float:
+    """Step 0.1 s at a time until the plant says it is at rest; the arm time it took."""
+    t = 0.0
+    while t < max_s:
+        plant.step(0.1)
+        t += 0.1
+        if plant.settled():
+            return t
+    raise AssertionError(f"not settled after {max_s} s: qvel {plant.data.qvel}")
+
+
+def test_dynamics_come_to_rest_at_the_static_equilibrium():
+    arm = ArmModel.load(PLANAR)
+    plant = MujocoPlant(PLANAR, arm)
+    # power-up: motors hold l = 0, the arm hangs straight (no gravity torque at theta = 0)
+    np.testing.assert_allclose(plant.state.theta, 0.0, atol=1e-6)
+    target = np.array([0.3, -0.4])
+    f = arm.tension_distribution(target, 40.0)
+    plant.command(("length",) * arm.n_muscles, arm.length(target, f))
+    swung = []
+    for _ in range(20):  # the first 0.2 s: it swings past its target (real dynamics)
+        swung.append(plant.step(0.01).theta.copy())
+    assert not plant.settled()
+    assert np.abs(np.array(swung)[:, 0] - target[0]).max() > 0.01
+    _settle(plant)
+    np.testing.assert_allclose(plant.state.theta, target, atol=2e-4)
+    np.testing.assert_allclose(plant.state.tension, f, rtol=0.02, atol=0.5)
+    np.testing.assert_allclose(plant.state.length, arm.length(target, f), atol=1e-6)
+    # tension mode: the board's force loop holds the commanded tensions; the motor length is
+    # whatever the tendon and its elastic element need
+    plant.command(("tension",) * arm.n_muscles, f)
+    _settle(plant)
+    np.testing.assert_allclose(plant.state.tension, f, atol=0.05)
+    np.testing.assert_allclose(plant.state.theta, target, atol=2e-3)
+
+
+def test_a_plant_that_differs_from_its_description_rests_elsewhere():
+    arm = ArmModel.load(PLANAR)
+    target = np.array([0.3, -0.4])
+    f = arm.tension_distribution(target, 40.0)
+    plant = MujocoPlant(REAL, arm)
+    plant.command(("length",) * arm.n_muscles, arm.length(target, f))
+    _settle(plant)
+    # the real shoulder pulley is bigger and the arm heavier: the description's commands
+    # land somewhere else, by a few degrees, not by numerical noise
+    miss = np.abs(plant.state.theta - target)
+    assert 0.005 < miss.max() < 0.3
+    # the real arm's statics (its own MJCF as a description) predict where it rests
+    truth = ArmModel.load(REAL).equilibrium("length", arm.length(target, f), theta0=target)
+    np.testing.assert_allclose(plant.state.theta, truth.theta, atol=1e-3)
+
+
+def test_a_plant_that_does_not_fit_the_description_is_one_line(tmp_path):
+    arm = ArmModel.load(PLANAR)
+    other = tmp_path / "renamed.xml"
+    other.write_text(PLANAR.read_text().replace('name="elbow_extensor"', 'name="triceps"'))
+    with pytest.raises(PlantMismatch, match="no tendon named elbow_extensor") as err:
+        MujocoPlant(other, arm)
+    assert str(other) in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(PlantMismatch, match="no hinge joint named shoulder"):
+        MujocoPlant(ARMS / "spatial_3dof.xml", arm)
+
+
+def test_the_boards_report_what_the_mujoco_arm_does():
+    """Through the protocol: loadcells read the tendon tension, motor encoders the motor
+    length, joint encoders the joint angles of the integrated arm."""
+    from pimbs_hw import open_arm
+
+    arm = ArmModel.load(PLANAR)
+    target = np.array([0.15, -0.1])
+    f = arm.tension_distribution(target, 30.0)
+    lengths = arm.length(target, f)
+    with open_arm("virtual", PLANAR, speed=5, seed=1,
+                  mock_options={"plant": PLANAR, "noise": False}) as (driver, mock):
+        assert isinstance(mock.plant, MujocoPlant)
+        driver.command("length", lengths)
+        t = 0.0
+        while not mock.settled() and t < 10.0:
+            driver.dwell(0.1)
+            t += 0.1
+        state = driver.dwell(0.2)
+        truth = mock.snapshot()
+        assert truth.theta == pytest.approx(target, abs=1e-3)
+        assert state.theta == pytest.approx(truth.theta, abs=1e-3)
+        assert state.tension == pytest.approx(truth.tension, abs=0.5)
+        assert truth.tension == pytest.approx(f, abs=0.03 * f.max())
+        assert np.abs(state.length - truth.length).max() <= 1.5 / 108650  # one count
+        driver.command("tension", [30.0, 40.0, 30.0, 40.0, 30.0])
+        state = driver.dwell(0.3)
+        # the board's force loop holds its tension while the arm swings (these tensions do
+        # not balance gravity: the elbow ends on its limit)
+        assert state.tension == pytest.approx([30, 40, 30, 40, 30], abs=1.0)
+
+
+def test_collect_refuses_a_body_effect_with_a_plant(tmp_path):
+    out = tmp_path / "d.parquet"
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot", str(PLANAR),
+                                    "--plant", str(REAL), "--conceal", "mass:1.2", "-n", "2",
+                                    "--out", str(out)])
+    assert res.exit_code == 1 and "make that change in the plant file" in res.output
+    res = CliRunner().invoke(main, ["collect", "--port", "can0", "--robot", str(PLANAR),
+                                    "--plant", str(REAL), "-n", "2", "--out", str(out)])
+    assert res.exit_code == 1 and "act on the simulated arm only" in res.output
+
+
+def test_mockbus_runs_a_mujoco_plant_and_refuses_one_that_does_not_fit():
+    res = CliRunner().invoke(main, ["mockbus", "--robot", str(PLANAR), "--plant", str(REAL),
+                                    "--port", "pty", "--duration", "0.3"])
+    assert res.exit_code == 0, res.output
+    assert f"the true arm: {REAL}, integrated by MuJoCo" in res.output
+    spatial = ARMS / "spatial_3dof.xml"
+    res = CliRunner().invoke(main, ["mockbus", "--robot", str(PLANAR), "--plant", str(spatial),
+                                    "--port", "pty", "--duration", "0.3"])
+    assert res.exit_code == 1 and res.output.count("\n") == 1
+    assert f"--plant {spatial}: no hinge joint named shoulder" in res.output
