@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pimbs_calibration.file_kind import model_file_kind, not_a_muscle_file
+from pimbs_calibration.file_kind import MJCF_KIND, model_file_kind, not_a_muscle_file
 from pimbs_calibration.urdf_model import (
     UNLIMITED,
     ReducedModel,
@@ -191,6 +191,9 @@ def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
 
 def _load_file(path: Path, package_path: Sequence[Path] = ()) -> RobotDescription:
     kind = model_file_kind(path)
+    if kind == MJCF_KIND:  # an MJCF is a robot description by itself; MuJoCo wants .xml
+        raise DescriptionError(path, "<file>", "is an MJCF, and MuJoCo reads an MJCF only from "
+                               "a .xml file", f"Rename it to {path.stem}.xml and pass that")
     if kind is not None:
         raise NotAMuscleFileError(path, kind)
     try:

@@ -13,8 +13,9 @@ from pathlib import Path
 # the XML declaration, comments, doctype and processing instructions before the root element
 _PROLOGUE = re.compile(r"\A(?:\ufeff)?(?:\s+|<\?.*?\?>|<!--.*?-->|<!DOCTYPE[^>]*>)*", re.S)
 _ROOT = re.compile(r"<([A-Za-z_][\w.:-]*)")
-_KINDS = {"robot": "a URDF", "mujoco": "a MuJoCo model (MJCF)", "sdf": "an SDF model"}
-_SUFFIXES = {".urdf": "a URDF", ".xacro": "a xacro file", ".mjcf": "a MuJoCo model (MJCF)",
+MJCF_KIND = "a MuJoCo model (MJCF)"  # a robot description by itself (its tendons, muscles)
+_KINDS = {"robot": "a URDF", "mujoco": MJCF_KIND, "sdf": "an SDF model"}
+_SUFFIXES = {".urdf": "a URDF", ".xacro": "a xacro file", ".mjcf": MJCF_KIND,
              ".sdf": "an SDF model"}
 HOW = ("write a .muscles.yaml that names it (urdf: FILE), lists the joints the muscles "
        "drive and each muscle's via points, and pass that instead (README: 'Your robot')")

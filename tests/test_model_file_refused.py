@@ -1,4 +1,5 @@
-"""A URDF or MJCF given where a muscle file belongs is named for what it is, in one line."""
+"""A URDF given where a muscle file belongs is named for what it is, in one line; an MJCF is a
+robot description by itself, and one without tendons says so in one line."""
 
 from __future__ import annotations
 
@@ -18,7 +19,11 @@ MJCF = """<?xml version="1.0"?>
   <worldbody><body name="upper"><joint name="shoulder"/><geom size="0.1"/></body></worldbody>
 </mujoco>
 """
-FILES = {"arm.urdf": ("a URDF", None), "arm.xml": ("a MuJoCo model (MJCF)", MJCF)}
+FILES = {  # what the one line must say
+    "arm.urdf": "arm.urdf is a URDF, not a muscle file: write a .muscles.yaml that names it "
+                "(urdf: arm.urdf)",
+    "arm.xml": "arm.xml: field 'muscles': ",  # an MJCF without spatial tendons
+}
 
 
 @pytest.fixture
@@ -47,11 +52,9 @@ def _files(root: Path) -> dict[str, bytes]:
 def test_a_model_file_for_a_muscle_file_is_one_line(workdir, name, args) -> None:
     before = _files(workdir)
     res = CliRunner().invoke(main, [a.format(f=name) for a in args])
-    kind = FILES[name][0]
     assert res.exit_code == 1, res.output
     assert res.output.count("\n") == 1 and "Traceback" not in res.output, res.output
-    assert f"{name} is {kind}, not a muscle file: write a .muscles.yaml that names it " \
-           f"(urdf: {name})" in res.output
+    assert FILES[name] in res.output, res.output
     assert _files(workdir) == before  # nothing written, nothing changed
 
 
@@ -70,3 +73,14 @@ def test_kinds_are_told_from_the_content_not_only_the_name(tmp_path) -> None:
     muscles = tmp_path / "arm.muscles.yaml"
     muscles.write_text("robot: a  # <robot> in a comment\n")
     assert model_file_kind(muscles) is None
+
+
+def test_an_mjcf_under_another_suffix_is_named_with_the_rename(tmp_path) -> None:
+    """MuJoCo reads an MJCF only from a .xml file: the line says so instead of a YAML error."""
+    fixture = Path(__file__).resolve().parents[1] / "fixtures" / "mujoco" / "planar_2dof.xml"
+    arm = tmp_path / "arm.mjcf"
+    arm.write_text(fixture.read_text())
+    with pytest.raises(ValueError, match=r"arm.mjcf: .*is an MJCF.*Rename it to arm.xml"):
+        load_robot(arm)
+    (tmp_path / "arm.xml").write_text(fixture.read_text())
+    assert load_robot(tmp_path / "arm.xml").mjcf_path is not None
