@@ -133,3 +133,21 @@ def test_mockbus_runs_a_mujoco_plant_and_refuses_one_that_does_not_fit():
                                     "--port", "pty", "--duration", "0.3"])
     assert res.exit_code == 1 and res.output.count("\n") == 1
     assert f"--plant {spatial}: no hinge joint named shoulder" in res.output
+
+
+def test_collect_on_a_mujoco_plant_records_the_plant_not_the_description(tmp_path):
+    """A whole collection through the mock bus on MuJoCo's dynamics: every sample settles
+    (slack removal waits for the swinging arm to come to rest), and the lengths recorded are
+    the plant's, which differs from the description (bigger pulley, moved insertion)."""
+    from pimbs_recording.format import read_recording
+
+    out = tmp_path / "real.parquet"
+    res = CliRunner().invoke(main, [
+        "collect", "--port", "virtual", "--robot", str(ARMS / "planar_2dof.xml"),
+        "--plant", str(ARMS / "planar_2dof_real.xml"), "--samples", "3", "--seed", "1",
+        "--mock-speed", "5", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_rows == 3 and rec.array("settled").all()
+    arm = ArmModel.load(ARMS / "planar_2dof.xml")
+    assert np.abs(rec.length - arm.length(rec.theta, rec.tension)).max() > 5e-4

@@ -45,14 +45,14 @@ class SettleConfig:
         return {k: v for k, v in asdict(self).items() if k != "poll"}
 
     def reached(self, length_tol: float = 1e-3) -> SettleConfig:
-        """End of a move: motors within ``length_tol`` of their commands, no quiet window.
+        """End of a move: motors within ``length_tol`` of their commands and the joints at
+        rest (the usual joint tolerance and window).
 
-        The slack removal that follows may start while the arm still creeps (it ramps from
-        the current readings, and the final settle waits for rest), but not while a slow motor
-        is still far from its length.
+        The slack removal that follows must not start while the arm still swings: under real
+        dynamics (a MuJoCo plant, a real arm) a swinging arm runs into a held antagonist and
+        its tension spikes past the ceiling. Tensions may still be far from their holding.
         """
-        return replace(self, length_tol=length_tol, tension_tol=np.inf, theta_tol=np.inf,
-                       window=0.0, min_readings=2, fixed_wait=None)
+        return replace(self, length_tol=length_tol, tension_tol=np.inf, fixed_wait=None)
 
     def overshot(self, length_tol: float, tension_tol: np.ndarray) -> SettleConfig:
         """At the overshoot before the final approach: lengths and tensions both reached.
