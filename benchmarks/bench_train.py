@@ -20,6 +20,10 @@ What is measured (one torch thread everywhere; ``OMP_NUM_THREADS=1``):
   ``--epochs`` epochs (ATL, N = 30, α = 1e-5, seeds 0, 1, …), start-up, data loading,
   noise estimate, joint-angle report and all, timed from outside; the processes of the
   four alternate. Each process's L_eval (×1e5) is read from its JSON line.
+- **optimizer start-up**: in fresh processes (after ``import torch``), the seconds to
+  build the optimizer and take its first step: ``torch.optim.Adam(fused=True)``, which
+  imports ``torch._dynamo``, against :class:`pimbs_learn.adam.FusedAdam`, and the cost of
+  ``import torch._dynamo`` alone.
 - **long**: one default ``pimbs train`` of ``--long-epochs`` epochs at N = 30
   (``--skip-long`` skips it).
 
@@ -161,6 +165,36 @@ def pimbs_train(data: Path, name: str, epochs: int, seed: int, n_train: int = 30
     return seconds, json.loads(out.stdout.strip().splitlines()[-1])["eval_loss"]
 
 
+_STARTUP = {
+    "import torch._dynamo": "import time; t = time.perf_counter(); import torch._dynamo",
+    "torch.optim.Adam(fused=True), build + first step": (
+        "ps = [t.requires_grad_(True) for t in init_params(D, M, 0).values()]\n"
+        "import time; t = time.perf_counter()\n"
+        "o = torch.optim.Adam(ps, lr=1e-3, fused=True)\n"
+        "for x in ps: x.grad = torch.ones_like(x)\n"
+        "o.step()"),
+    "pimbs_learn.adam.FusedAdam, build + first step": (
+        "ps = list(init_params(D, M, 0).values())\n"
+        "import time; t = time.perf_counter()\n"
+        "from pimbs_learn.adam import FusedAdam\n"
+        "FusedAdam(ps, 1e-3).step([torch.ones_like(x) for x in ps])"),
+}
+
+
+def optimizer_startup(n_in: int, m: int, repeats: int) -> dict[str, float]:
+    """Median seconds of each :data:`_STARTUP` snippet, each in a fresh interpreter that has
+    already imported torch, the snippets alternating."""
+    head = f"import torch\nfrom pimbs_learn.model import init_params\nD, M = {n_in}, {m}\n"
+    tail = "\nprint(time.perf_counter() - t)"
+    seconds: dict[str, list[float]] = {k: [] for k in _STARTUP}
+    for _ in range(repeats):
+        for name, body in _STARTUP.items():
+            out = subprocess.run([sys.executable, "-c", head + body + tail], check=True,
+                                 capture_output=True, text=True)
+            seconds[name].append(float(out.stdout.split()[-1]))
+    return {k: statistics.median(v) for k, v in seconds.items()}
+
+
 def end_to_end(data: Path, epochs: int, processes: int) -> dict[str, tuple[float, list[float]]]:
     """Total wall seconds of ``processes`` runs of each configuration, and their L_eval."""
     total = {name: 0.0 for name in CONFIGS}
@@ -200,6 +234,7 @@ def main() -> None:
               f"{1000 + max(ns)} rows (two-link-4-muscle, ATL)", flush=True)
         run0 = make_run(data, "default", 30)
         n_in, m = run0.scaling().n_inputs, run0.train.length.shape[1]
+        startup = optimizer_startup(n_in, m, a.repeats)
         ep = per_epoch(data, ns, a.epoch_sample, a.repeats, a.ref_epochs, n_in, m)
         floor = ep[("floor", 0)]
         print(f"per epoch measured: {_uptime()}", flush=True)
@@ -209,6 +244,9 @@ def main() -> None:
             long = pimbs_train(data, "default", a.long_epochs, seed=0)
         print(f"after: {_uptime()}")
 
+    print()
+    for name, sec in startup.items():
+        print(f"{name}: {sec:.3f} s (median of {a.repeats} fresh processes)")
     print()
     print("| trainer | " + " | ".join(f"ms/epoch N={n} (× floor)" for n in ns)
           + f" | {a.processes} × `pimbs train` {a.epochs} epochs, N=30 (s) | L_eval ×1e5 |")
