@@ -1,101 +1,272 @@
-"""Fast trainer vs the straightforward reference, same data, same init, same process.
+"""Training speed, one run on one machine: the reference trainer, Basic and the default,
+per epoch and end to end, beside the optimizer's floor.
 
-    .venv/bin/python benchmarks/bench_train.py [--epochs 1000] [--n-train 30] [--threads 2]
+    .venv/bin/python benchmarks/bench_train.py [--n 5,30,100] [--repeats 3]
+        [--epochs 1000] [--processes 3] [--skip-long] [--long-epochs 20000]
 
-Prints ms/epoch of each, the ratio, the 20000-epoch time extrapolated linearly from the
-measured ms/epoch (stated as such), and each trainer's selected eval loss (×1e5): the fast
-one must be no worse. The machine is shared, so ms/epoch is given both as the mean over the
-whole run and as the median of 50-epoch chunks (robust to other users' bursts); the ratio
-uses the medians. Uses the closed-form synthetic 2-DOF 4-muscle body (ATL-Map,
-Basic+Const+PINN, α = 1e-5) unless --data gives a recording.
+What is measured (one torch thread everywhere; ``OMP_NUM_THREADS=1``):
+
+- **floor**: one fused Adam step over the paper's network (ATL-Map, inputs N+M → 1000 →
+  1000 → M), alone: what every epoch pays whatever its gradient costs.
+- **per epoch**, in this process, ms per epoch (median of 50-epoch chunks) at each N of
+  ``--n``: *Basic* (``pimbs train --loss basic``), *default* (``pimbs train --alpha 1e-5``:
+  Basic+Const+PINN, series-elastic ATL-Map on the description's model) and, at N = 30, the
+  *reference* (``pimbs train --reference --structure mlp --no-prior --alpha 1e-5
+  --lr-schedule constant``: the paper's method written the straightforward way) and
+  *paper, fast* (the same options without ``--reference``: the same work, fast). The
+  floor, Basic and the default are measured in turns (``--repeats`` rounds), so a burst of
+  other users' work hits all of them alike.
+- **end to end**: for each of the four, ``--processes`` ``pimbs train`` processes of
+  ``--epochs`` epochs (ATL, N = 30, α = 1e-5, seeds 0, 1, …), start-up, data loading,
+  noise estimate, joint-angle report and all, timed from outside; the processes of the
+  four alternate. Each process's L_eval (×1e5) is read from its JSON line.
+- **optimizer start-up**: in fresh processes (after ``import torch``), the seconds to
+  build the optimizer and take its first step: ``torch.optim.Adam(fused=True)``, which
+  imports ``torch._dynamo``, against :class:`pimbs_learn.adam.FusedAdam`, and the cost of
+  ``import torch._dynamo`` alone.
+- **long**: one default ``pimbs train`` of ``--long-epochs`` epochs at N = 30
+  (``--skip-long`` skips it).
+
+The data is a seeded ``pimbs simulate`` recording of the built-in two-link arm (ATL-Map,
+1000 rows + the training rows; the rows not drawn for training evaluate). ``uptime`` is
+printed before and after: on a shared machine the load says how far to trust the numbers.
+Prints a markdown table block at the end.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-import torch
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pimbs_learn.data import load_samples, split  # noqa: E402
-from pimbs_learn.losses import REPORT_SCALE, LossConfig  # noqa: E402
+from pimbs_learn.adam import FusedAdam  # noqa: E402
+from pimbs_learn.losses import LossConfig  # noqa: E402
+from pimbs_learn.model import init_params  # noqa: E402
 from pimbs_learn.reference import train_reference  # noqa: E402
 from pimbs_learn.run import Run, TrainOptions  # noqa: E402
-from pimbs_learn.synthetic import synthetic_samples  # noqa: E402
-from pimbs_learn.train import train, train_runs  # noqa: E402
+from pimbs_learn.session import prepare_run  # noqa: E402
+from pimbs_learn.train import train_runs  # noqa: E402
+
+CHUNK = 50  # epochs per timed chunk
+ALPHA = 1e-5
+# name -> (`pimbs train` options, loss, structure, prior, schedule, trainer)
+CONFIGS: dict[str, tuple[list[str], str, str, bool, str, str]] = {
+    "reference": (["--reference", "--structure", "mlp", "--no-prior", "--alpha", str(ALPHA),
+                   "--lr-schedule", "constant"], "basic+const+pinn", "mlp", False,
+                  "constant", "reference"),
+    "paper, fast": (["--structure", "mlp", "--no-prior", "--alpha", str(ALPHA),
+                     "--lr-schedule", "constant"], "basic+const+pinn", "mlp", False,
+                    "constant", "fast"),
+    "Basic": (["--loss", "basic"], "basic", "series-elastic", True, "exp", "fast"),
+    "default": (["--alpha", str(ALPHA)], "basic+const+pinn", "series-elastic", True, "exp",
+                "fast"),
+}
 
 
-class ChunkTimer:
-    """Progress callback that records the wall time of each chunk of epochs."""
+def _uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return f"load average {os.getloadavg()}"
 
-    def __init__(self) -> None:
-        self.last, self.epochs, self.ms = time.perf_counter(), 0, []
 
-    def __call__(self, epoch: int) -> None:
-        if torch.cuda.is_available():
-            torch.cuda.synchronize()  # GPU work is asynchronous; time what was done
+def _pimbs() -> list[str]:
+    exe = shutil.which("pimbs", path=str(Path(sys.executable).parent))
+    return [exe] if exe else [sys.executable, "-m", "pimbs_cli.main"]
+
+
+def chunk_ms(work: Callable[[Callable[[int], None]], None]) -> list[float]:
+    """ms per epoch of each chunk of ``CHUNK`` epochs (work calls back with epochs done)."""
+    ms: list[float] = []
+    last = [time.perf_counter(), 0]
+
+    def done(epoch: int) -> None:
         now = time.perf_counter()
-        self.ms.append((now - self.last) * 1e3 / (epoch - self.epochs))
-        self.last, self.epochs = now, epoch
+        ms.append((now - last[0]) * 1e3 / (epoch - last[1]))
+        last[:] = [now, epoch]
 
-    @property
-    def median(self) -> float:
-        return statistics.median(self.ms)
-
-
-def timed(trainer, run: Run, opts: TrainOptions, name: str):
-    timer = ChunkTimer()
-    res = trainer(run, opts, progress=timer, progress_every=CHUNK)
-    mean = res.seconds / opts.epochs * 1e3
-    print(f"{name:10s}: {timer.median:7.2f} ms/epoch median of chunks ({mean:.2f} mean)  "
-          f"eval_loss {res.eval_loss * REPORT_SCALE:.4f} (best epoch {res.best_epoch})  "
-          f"-> 20000 epochs ≈ {timer.median * 20:.0f} s (extrapolated)")
-    return res, timer.median
+    work(done)
+    return ms
 
 
-CHUNK = 50
+def floor_ms(n_in: int, m: int, epochs: int) -> list[float]:
+    """One fused Adam step over the paper's network's tensors, alone, per 'epoch'."""
+    params = [t.unsqueeze(0) for t in init_params(n_in, m, seed=0).values()]
+    grads = [torch.full_like(t, 1e-3) for t in params]
+    adam = FusedAdam(params, 1e-3)
+
+    def work(done: Callable[[int], None]) -> None:
+        for e in range(epochs):
+            adam.step(grads, 1e-3)
+            if (e + 1) % CHUNK == 0:
+                done(e + 1)
+
+    return chunk_ms(work)
+
+
+def make_run(data: Path, name: str, n_train: int, seed: int = 0) -> Run:
+    _, loss, structure, prior, _, _ = CONFIGS[name]
+    return prepare_run(data, LossConfig.parse(loss, ALPHA, "fixed"), atl=True,
+                       n_train=n_train, seed=seed, structure=structure, prior=prior,
+                       note=lambda s: None)
+
+
+def train_ms(run: Run, name: str, epochs: int) -> list[float]:
+    """ms per epoch of chunks of a real training run (the trainer `pimbs train` uses)."""
+    *_, schedule, trainer = CONFIGS[name]
+    opts = TrainOptions(epochs=epochs, schedule=schedule)
+    if trainer == "reference":
+        return chunk_ms(lambda done: train_reference(run, opts, done, CHUNK))
+    return chunk_ms(lambda done: train_runs([run], opts, done, CHUNK))
+
+
+def per_epoch(data: Path, ns: list[int], epochs: int, repeats: int, ref_epochs: int,
+              n_in: int, m: int) -> dict[tuple[str, int], float]:
+    """Median ms/epoch of the floor, Basic and default at each N, measured in alternating
+    rounds (and of the paper's method, reference and fast, at N = 30)."""
+    runs = {(name, n): make_run(data, name, n) for n in ns for name in ("Basic", "default")}
+    for run in runs.values():  # warm-up: allocator, kernels, first-touch pages
+        train_runs([run], TrainOptions(epochs=CHUNK))
+    chunks: dict[tuple[str, int], list[float]] = {}
+    for _ in range(repeats):
+        chunks.setdefault(("floor", 0), []).extend(floor_ms(n_in, m, epochs))
+        for (name, n), run in runs.items():
+            chunks.setdefault((name, n), []).extend(train_ms(run, name, epochs))
+    if ref_epochs:
+        for name in ("reference", "paper, fast"):
+            chunks[(name, 30)] = train_ms(make_run(data, name, 30), name, ref_epochs)
+    return {k: statistics.median(v) for k, v in chunks.items()}
+
+
+def pimbs_train(data: Path, name: str, epochs: int, seed: int, n_train: int = 30
+                ) -> tuple[float, float]:
+    """(wall seconds, L_eval ×1e5) of one `pimbs train` process, start-up included."""
+    args = [*_pimbs(), "train", str(data), "--n-train", str(n_train), "--epochs", str(epochs),
+            "--seed", str(seed), "--threads", "1", *CONFIGS[name][0]]
+    t0 = time.perf_counter()
+    out = subprocess.run(args, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if out.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed:\n{out.stderr}")
+    return seconds, json.loads(out.stdout.strip().splitlines()[-1])["eval_loss"]
+
+
+_STARTUP = {
+    "import torch._dynamo": "import time; t = time.perf_counter(); import torch._dynamo",
+    "torch.optim.Adam(fused=True), build + first step": (
+        "ps = [t.requires_grad_(True) for t in init_params(D, M, 0).values()]\n"
+        "import time; t = time.perf_counter()\n"
+        "o = torch.optim.Adam(ps, lr=1e-3, fused=True)\n"
+        "for x in ps: x.grad = torch.ones_like(x)\n"
+        "o.step()"),
+    "pimbs_learn.adam.FusedAdam, build + first step": (
+        "ps = list(init_params(D, M, 0).values())\n"
+        "import time; t = time.perf_counter()\n"
+        "from pimbs_learn.adam import FusedAdam\n"
+        "FusedAdam(ps, 1e-3).step([torch.ones_like(x) for x in ps])"),
+}
+
+
+def optimizer_startup(n_in: int, m: int, repeats: int) -> dict[str, float]:
+    """Median seconds of each :data:`_STARTUP` snippet, each in a fresh interpreter that has
+    already imported torch, the snippets alternating."""
+    head = f"import torch\nfrom pimbs_learn.model import init_params\nD, M = {n_in}, {m}\n"
+    tail = "\nprint(time.perf_counter() - t)"
+    seconds: dict[str, list[float]] = {k: [] for k in _STARTUP}
+    for _ in range(repeats):
+        for name, body in _STARTUP.items():
+            out = subprocess.run([sys.executable, "-c", head + body + tail], check=True,
+                                 capture_output=True, text=True)
+            seconds[name].append(float(out.stdout.split()[-1]))
+    return {k: statistics.median(v) for k, v in seconds.items()}
+
+
+def end_to_end(data: Path, epochs: int, processes: int) -> dict[str, tuple[float, list[float]]]:
+    """Total wall seconds of ``processes`` runs of each configuration, and their L_eval."""
+    total = {name: 0.0 for name in CONFIGS}
+    losses: dict[str, list[float]] = {name: [] for name in CONFIGS}
+    for seed in range(processes):
+        for name in CONFIGS:
+            s, loss = pimbs_train(data, name, epochs, seed)
+            total[name] += s
+            losses[name].append(loss)
+            print(f"  {name:9s} seed {seed}: {s:6.1f} s, L_eval {loss:.4g}", flush=True)
+    return {name: (total[name], losses[name]) for name in CONFIGS}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--epochs", type=int, default=1000)
-    ap.add_argument("--n-train", type=int, default=30)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--loss", default="basic+const+pinn")
-    ap.add_argument("--alpha", type=float, default=1e-5)
-    ap.add_argument("--data", help="a recording to use instead of the synthetic body")
-    ap.add_argument("--skip-reference", action="store_true")
-    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    ap.add_argument("--n", default="5,30,100", help="training-set sizes for per-epoch times")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating rounds per epoch")
+    ap.add_argument("--epoch-sample", type=int, default=300,
+                    help="epochs per measurement of the per-epoch time")
+    ap.add_argument("--ref-epochs", type=int, default=200,
+                    help="epochs of the reference's per-epoch time (0: skip)")
+    ap.add_argument("--epochs", type=int, default=1000, help="epochs per end-to-end process")
+    ap.add_argument("--processes", type=int, default=3, help="end-to-end processes per trainer")
+    ap.add_argument("--skip-end-to-end", action="store_true")
+    ap.add_argument("--long-epochs", type=int, default=20000)
+    ap.add_argument("--skip-long", action="store_true", help="skip the long default run")
     a = ap.parse_args()
-    torch.set_num_threads(a.threads)
+    torch.set_num_threads(1)
+    ns = [int(x) for x in a.n.split(",")]
 
-    if a.data:
-        tr, ev = split(load_samples(a.data), a.n_train, seed=0)
-    else:
-        tr = synthetic_samples(a.n_train, seed=0)
-        ev = synthetic_samples(1000, seed=1)
-    run = Run(tr, ev, LossConfig.parse(a.loss, a.alpha), seed=0, atl=True)
-    opts = TrainOptions(epochs=a.epochs, device=a.device)
-    print(f"ATL-Map, {a.loss}, alpha={a.alpha:g}, n_train={tr.n_samples}, "
-          f"n_eval={ev.n_samples}, epochs={a.epochs}, threads={a.threads}, "
-          f"device={a.device}")
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "two-link.parquet"
+        subprocess.run([*_pimbs(), "simulate", "--samples", str(1000 + max(ns)), "--seed",
+                        "0", "--out", str(data)], check=True, capture_output=True)
+        print(f"before: {_uptime()}")
+        print(f"torch {torch.__version__}, 1 thread; data: {data.name}, "
+              f"{1000 + max(ns)} rows (two-link-4-muscle, ATL)", flush=True)
+        run0 = make_run(data, "default", 30)
+        n_in, m = run0.scaling().n_inputs, run0.train.length.shape[1]
+        startup = optimizer_startup(n_in, m, a.repeats)
+        ep = per_epoch(data, ns, a.epoch_sample, a.repeats, a.ref_epochs, n_in, m)
+        floor = ep[("floor", 0)]
+        print(f"per epoch measured: {_uptime()}", flush=True)
+        e2e = {} if a.skip_end_to_end else end_to_end(data, a.epochs, a.processes)
+        long = None
+        if not a.skip_long:
+            long = pimbs_train(data, "default", a.long_epochs, seed=0)
+        print(f"after: {_uptime()}")
 
-    train(run, TrainOptions(epochs=20, device=a.device))  # warm-up (allocator, kernels)
-    fast, fast_ms = timed(train_one, run, opts, "fast")
-    if a.skip_reference:
-        return
-    ref, ref_ms = timed(train_reference, run, opts, "reference")
-    print(f"speed-up  : {ref_ms / fast_ms:.1f}x (medians);  eval_loss fast/reference = "
-          f"{fast.eval_loss / ref.eval_loss:.4f}")
-
-
-def train_one(run: Run, opts: TrainOptions, progress, progress_every: int):
-    return train_runs([run], opts, progress, progress_every)[0]
+    print()
+    for name, sec in startup.items():
+        print(f"{name}: {sec:.3f} s (median of {a.repeats} fresh processes)")
+    print()
+    print("| trainer | " + " | ".join(f"ms/epoch N={n} (× floor)" for n in ns)
+          + f" | {a.processes} × `pimbs train` {a.epochs} epochs, N=30 (s) | L_eval ×1e5 |")
+    print("|---|" + "---:|" * len(ns) + "---:|---|")
+    print(f"| floor: one fused Adam step ({n_in}→1000→1000→{m}) | "
+          + " | ".join(f"{floor:.2f}" for _ in ns) + " | | |")
+    for name in CONFIGS:
+        cells = []
+        for n in ns:
+            v = ep.get((name, n))
+            cells.append("" if v is None else f"{v:.2f} ({v / floor:.2f}×)")
+        total, losses = e2e.get(name, (None, []))
+        t = "" if total is None else f"{total:.1f}"
+        if total is not None and name != "reference" and "reference" in e2e:
+            t += f" (1/{e2e['reference'][0] / total:.1f} of the reference)"
+        ls = ", ".join(f"{x:.4g}" for x in losses)
+        print(f"| {name} | " + " | ".join(cells) + f" | {t} | {ls} |")
+    if long is not None:
+        print(f"\nOne default `pimbs train --alpha {ALPHA:g}` of {a.long_epochs} epochs at N=30, "
+              f"1 thread, start-up included: {long[0]:.1f} s (L_eval {long[1]:.4g}).")
 
 
 if __name__ == "__main__":

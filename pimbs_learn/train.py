@@ -6,7 +6,9 @@ Why it is fast, compared with :mod:`pimbs_learn.reference`:
   double backward, the two W2 weight-gradient products fused into one matmul. What is left
   is ~5 matmuls with the 1000×1000 layer per epoch, which is the cost floor on a CPU.
 - L_const rides along as one extra all-zero row of the training batch.
-- Fused Adam (one kernel over every tensor) where torch has it.
+- Fused Adam (one kernel over every tensor) where torch has it, called without
+  torch.optim (:mod:`pimbs_learn.adam`), whose import of the compile machinery costs more
+  start-up than a short run.
 - No evaluation during training: the weights of each new best epoch are kept (copied on
   the CPU; a masked copy without host sync on a GPU) and L_eval is computed once, for those
   weights, at the end — exactly the selection rule's number, with one evaluation.
@@ -21,6 +23,7 @@ import time
 import numpy as np
 import torch
 
+from pimbs_learn.adam import FusedAdam
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
@@ -55,14 +58,6 @@ def _torque_floor(r: Run, auto: bool) -> tuple[float, float | None]:
     except torch.linalg.LinAlgError:  # a degenerate sample set: keep the relative floor
         return floor, None
     return max(floor, noise ** 2), noise
-
-
-def make_adam(params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
-    """Fused Adam if this torch/device has it, else the multi-tensor one."""
-    try:
-        return torch.optim.Adam(params, lr=lr, fused=True)
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(params, lr=lr, foreach=True)
 
 
 def _stack(arrays: list[np.ndarray], dtype: torch.dtype, dev: torch.device) -> torch.Tensor:
@@ -178,9 +173,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         if r.prior is not None:  # start exactly at the geometric model
             i["w3"].zero_()
             i["b3"].zero_()
-    p: Params = {k: torch.stack([i[k] for i in inits]).to(dev).requires_grad_(True)
-                 for k in inits[0]}
-    opt = make_adam(list(p.values()), options.lr)
+    p: Params = {k: torch.stack([i[k] for i in inits]).to(dev) for k in inits[0]}
+    opt = FusedAdam(list(p.values()), options.lr)
     best_p = {k: v.detach().clone() for k, v in p.items()}
     best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)  # selection score
     best_lb = torch.full((r_n,), float("inf"), dtype=dt, device=dev)
@@ -198,15 +192,11 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             best_lb = torch.where(improved, lb, best_lb)
             best_epoch = torch.where(improved, epoch, best_epoch)
             _keep_best(p, best_p, improved, on_host)
-            for k, v in p.items():
-                v.grad = grads[k]
             if options.curve_every and epoch % options.curve_every == 0:
                 curve_e.append(epoch)
                 curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
                 curve_t.append(lb)
-        for group in opt.param_groups:
-            group["lr"] = options.lr_at(epoch)
-        opt.step()
+        opt.step([grads[k] for k in p], options.lr_at(epoch))
         if progress is not None and ((epoch + 1) % progress_every == 0
                                      or epoch + 1 == options.epochs):
             progress(epoch + 1)
