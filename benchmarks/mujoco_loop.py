@@ -56,21 +56,39 @@ def pimbs(*args: str | Path, check: bool = True) -> subprocess.CompletedProcess:
 
 
 def collect(out: Path, robot: Path, plant: Path, samples: int, seed: int, speed: float,
-            schema: Path | None = None, tries: int = 8) -> tuple[Path, list[str]]:
-    """A complete collection on the plant; every stop is resumed and its last line kept."""
+            schema: Path | None = None, stuck: int = 3) -> tuple[Path, list[str]]:
+    """A complete collection on the plant; every stop is resumed and its last line kept.
+
+    The stops are logged beside the recording (``OUT.stops.json``), so a rerun that resumes
+    an earlier collection still reports them all. Gives up after ``stuck`` stops in a row
+    that added no row.
+    """
     args = ["collect", "--port", "virtual", "--robot", robot, "--plant", plant,
             "--samples", samples, "--seed", seed, "--mock-speed", speed, "--out", out]
     if schema is not None:
         args += ["--schema", schema]
-    stops: list[str] = []
-    for _ in range(tries):
+    log = out.with_name(out.name + ".stops.json")
+    stops: list[str] = json.loads(log.read_text()) if out.exists() and log.exists() else []
+    without_progress = 0
+    while True:
+        rows = rows_in(out)
+        if rows >= samples:
+            return out, stops
         res = pimbs(*args, *(["--resume"] if out.exists() else []), check=False)
         if res.returncode == 0:
             return out, stops
         lines = (res.stderr.strip() or res.stdout.strip()).splitlines()
         stops.append(short_stop(lines[-1]) if lines else f"exit {res.returncode}")
+        log.write_text(json.dumps(stops, indent=1) + "\n")
         print(f"  stopped: {stops[-1]}", file=sys.stderr, flush=True)
-    raise RuntimeError(f"collection {out} did not complete in {tries} runs: {stops}")
+        without_progress = 0 if rows_in(out) > rows else without_progress + 1
+        if without_progress >= stuck:
+            raise RuntimeError(f"collection {out} stopped {stuck} times in a row without a "
+                               f"new row: {stops[-stuck:]}")
+
+
+def rows_in(path: Path) -> int:
+    return read_recording(path).n_rows if path.exists() else 0
 
 
 def short_stop(line: str) -> str:
