@@ -99,12 +99,25 @@ def short_stop(line: str) -> str:
     return ", ".join(x for x in (head, where and where.group(0), need and need.group(0)) if x)
 
 
-def pose_error_deg(path: Path) -> dict[str, list[float]]:
-    """rms and median of |θ − θ_command| per joint, degrees, and the largest."""
+def pose_error_deg(path: Path, rows: np.ndarray | None = None) -> dict[str, list[float]]:
+    """rms, median and largest |θ − θ_command| per joint, degrees (of ``rows``, default all)."""
     rec = read_recording(path)
     err = np.abs(rec.theta - rec.theta_command) * DEG
+    err = err if rows is None else err[rows]
     return {"rms": np.sqrt(np.mean(err ** 2, axis=0)).tolist(),
             "median": np.median(err, axis=0).tolist(), "max": err.max(axis=0).tolist()}
+
+
+def by_schema(path: Path) -> np.ndarray:
+    """Rows the schema commanded (not those that fell back to the geometric plan)."""
+    return np.asarray(read_recording(path).array("commanded_by"), str) != "geometric"
+
+
+def ratio_row(label: str, g: dict[str, list[float]], s: dict[str, list[float]]) -> str:
+    def r(k: str) -> str:
+        return " / ".join(f"{x / max(y, 1e-12):.1f}×" for x, y in zip(g[k], s[k], strict=True))
+
+    return f"| {label} | {r('rms')} | {r('median')} | {r('max')} |"
 
 
 def commanded_by(path: Path) -> dict[str, int]:
@@ -113,6 +126,15 @@ def commanded_by(path: Path) -> dict[str, int]:
         return {}
     names, counts = np.unique(np.asarray(rec.array("commanded_by"), str), return_counts=True)
     return {str(k): int(v) for k, v in zip(names, counts, strict=True)}
+
+
+def geometric_length_rms_mm(robot: Path, data: Path) -> float:
+    """The description's lengths at the recorded angles and tensions against the recorded."""
+    from pimbs_arm.model import ArmModel
+
+    rec = read_recording(data)
+    pred = ArmModel.load(robot).length(rec.theta, rec.tension)
+    return float(np.sqrt(np.mean((pred - rec.length) ** 2)) * 1e3)
 
 
 def onnx_length_rms_mm(onnx: Path, data: Path) -> float:
@@ -174,6 +196,9 @@ def main() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     a.work.mkdir(parents=True, exist_ok=True)
     w, started = a.work, time.perf_counter()
+    reused = any(p.exists() for p in (w / "train.parquet", w / "new-geometric.parquet")) or (
+        not a.retrain and any(p.exists() for p in (w / "model" / "model.json",
+                                                    w / "new-schema.parquet")))
 
     train, train_stops = collect(w / "train.parquet", a.robot, a.plant, a.train_samples,
                                  a.train_seed, a.mock_speed)
@@ -189,7 +214,7 @@ def main() -> None:
         learned.unlink()
     learned, schema_stops = collect(learned, a.robot, a.plant, a.test_samples, a.test_seed,
                                     a.mock_speed, schema=model)
-    pimbs("estimate", model, geom, "--json", w / "estimate.json", "--force")
+    pimbs("estimate", model, geom, "--robot", a.robot, "--json", w / "estimate.json", "--force")
     est = json.loads((w / "estimate.json").read_text())
     pimbs("export", model, "--onnx", w / "model.onnx", "--force")
     sim = w / "sim.parquet"
@@ -201,8 +226,8 @@ def main() -> None:
 
     joints = read_recording(geom).joints
     g, s = pose_error_deg(geom), pose_error_deg(learned)
-    ratio = {k: [x / max(y, 1e-12) for x, y in zip(g[k], s[k], strict=True)]
-             for k in ("rms", "median")}
+    mine = by_schema(learned)
+    g_mine, s_mine = pose_error_deg(geom, mine), pose_error_deg(learned, mine)
     by = commanded_by(learned)
     epochs = trained.get("epochs", a.epochs)
     kept = trained.get("best_epoch", trained.get("epoch_kept"))
@@ -215,7 +240,10 @@ def main() -> None:
         f"{len(train_stops)} stops resumed" + "".join(f"\n     stop: {x}" for x in train_stops),
         f"2. train: ATL-Map defaults, {epochs} epochs"
         + (f" (kept epoch {kept})" if kept is not None else "")
-        + f", all {read_recording(train).n_rows} rows train, evaluated on the new poses",
+        + f", {trained.get('seconds', float('nan')):.0f} s; all {read_recording(train).n_rows} "
+        f"rows train; length error on the new poses "
+        f"{trained.get('eval_rms_mm', float('nan')):.3f} mm rms (geometric model "
+        f"{geometric_length_rms_mm(a.robot, geom):.3f} mm)",
         f"3. {read_recording(geom).n_rows} new poses (seed {a.test_seed}) on the plant, "
         f"pose error |θ − θ_command| [°, {' / '.join(joints)}]:",
         "| commanded by | rms | median | max |",
@@ -225,8 +253,12 @@ def main() -> None:
         f"| learned schema ({', '.join(f'{v} {k}' for k, v in by.items())}; "
         f"{len(schema_stops)} stops) | {fmt(s['rms'])} | {fmt(s['median'])} | "
         f"{fmt(s['max'])} |",
-        f"| geometric ÷ schema | {' / '.join(f'{x:.1f}×' for x in ratio['rms'])} | "
-        f"{' / '.join(f'{x:.1f}×' for x in ratio['median'])} | |",
+        ratio_row("geometric ÷ schema", g, s),
+        f"| geometric model, the {mine.sum()} poses the schema commanded | {fmt(g_mine['rms'])} "
+        f"| {fmt(g_mine['median'])} | {fmt(g_mine['max'])} |",
+        f"| learned schema, the same {mine.sum()} poses | {fmt(s_mine['rms'])} | "
+        f"{fmt(s_mine['median'])} | {fmt(s_mine['max'])} |",
+        ratio_row(f"geometric ÷ schema, those {mine.sum()}", g_mine, s_mine),
         f"4. estimate (joint angles of the new poses from lengths and tensions) [° rms]: "
         f"schema {fmt(est['rms_error_deg'])}, geometric {fmt(est['geometric_rms_error_deg'])}",
         f"   export --onnx: ONNX lengths vs recorded on the training rows "
@@ -237,7 +269,8 @@ def main() -> None:
     ]
     if speed:
         out.append(f"6. plant speed (benchmarks/bench_mujoco_plant.py): {speed}")
-    out += [f"whole loop {time.perf_counter() - started:.0f} s wall", "```"]
+    out += [f"wall time of this run {time.perf_counter() - started:.0f} s"
+            + (" (steps reused from --work not counted)" if reused else ""), "```"]
     print("\n".join(out))
 
 
