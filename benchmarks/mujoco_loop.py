@@ -56,7 +56,7 @@ def pimbs(*args: str | Path, check: bool = True) -> subprocess.CompletedProcess:
 
 
 def collect(out: Path, robot: Path, plant: Path, samples: int, seed: int, speed: float,
-            schema: Path | None = None, stuck: int = 3) -> tuple[Path, list[str]]:
+            schema: Path | None = None, stuck: int = 6) -> tuple[Path, list[str]]:
     """A complete collection on the plant; every stop is resumed and its last line kept.
 
     The stops are logged beside the recording (``OUT.stops.json``), so a rerun that resumes
