@@ -254,11 +254,12 @@ def main() -> None:
         f"{len(schema_stops)} stops) | {fmt(s['rms'])} | {fmt(s['median'])} | "
         f"{fmt(s['max'])} |",
         ratio_row("geometric ÷ schema", g, s),
-        f"| geometric model, the {mine.sum()} poses the schema commanded | {fmt(g_mine['rms'])} "
-        f"| {fmt(g_mine['median'])} | {fmt(g_mine['max'])} |",
-        f"| learned schema, the same {mine.sum()} poses | {fmt(s_mine['rms'])} | "
-        f"{fmt(s_mine['median'])} | {fmt(s_mine['max'])} |",
-        ratio_row(f"geometric ÷ schema, those {mine.sum()}", g_mine, s_mine),
+        *([] if mine.all() else [
+            f"| geometric model, the {mine.sum()} poses the schema commanded | "
+            f"{fmt(g_mine['rms'])} | {fmt(g_mine['median'])} | {fmt(g_mine['max'])} |",
+            f"| learned schema, the same {mine.sum()} poses | {fmt(s_mine['rms'])} | "
+            f"{fmt(s_mine['median'])} | {fmt(s_mine['max'])} |",
+            ratio_row(f"geometric ÷ schema, those {mine.sum()}", g_mine, s_mine)]),
         f"4. estimate (joint angles of the new poses from lengths and tensions) [° rms]: "
         f"schema {fmt(est['rms_error_deg'])}, geometric {fmt(est['geometric_rms_error_deg'])}",
         f"   export --onnx: ONNX lengths vs recorded on the training rows "
