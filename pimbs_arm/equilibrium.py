@@ -84,8 +84,8 @@ class _Problem:
     def hessian(self, s: _State) -> np.ndarray:
         """dg/dtheta + G^T diag(K (f + 1)) G (stretched springs) + sum_i f_i d2h_i."""
         stiff = np.where(self.is_length & (s.dn > 0), self.K * (s.f + 1.0), 0.0)
-        H = self.arm._gravity_derivative(s.theta) + s.G.T @ (stiff[:, None] * s.G)
-        H += self.arm._length_hessian(s.theta, s.f, s.paths)
+        H = self.arm.backend.gravity_derivative(s.theta) + s.G.T @ (stiff[:, None] * s.G)
+        H += self.arm.backend.length_hessian(s.theta, s.f, s.paths)
         return 0.5 * (H + H.T)
 
 

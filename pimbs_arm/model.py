@@ -108,12 +108,6 @@ class ArmModel:
         k = self.backend.kinematics(np.asarray(theta, dtype=np.float64), jacobian)
         return k.length, k.jacobian
 
-    def _length_hessian(self, theta: np.ndarray, weight: np.ndarray, cache=None
-                        ) -> np.ndarray:
-        """sum_i weight_i d2h_i/dtheta2 (N, N) (see the backend)."""
-        return self.backend.length_hessian(np.asarray(theta, dtype=np.float64),
-                                           np.asarray(weight, dtype=np.float64), cache)
-
     # ----------------------------------------------------------------- geometry and gravity
     def h_geom(self, theta) -> np.ndarray:
         """Geometric muscle length relative to theta = 0: (M,) or (B, M); h_geom(0) = 0."""
@@ -130,9 +124,6 @@ class ArmModel:
 
     def _gravity(self, theta: np.ndarray) -> np.ndarray:
         return self.backend.gravity(np.asarray(theta, dtype=np.float64))
-
-    def _gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
-        return self.backend.gravity_derivative(np.asarray(theta, dtype=np.float64))
 
     def potential_energy(self, theta) -> float:
         """Gravity potential energy (J) of a single pose; its gradient is ``gravity_torque``."""

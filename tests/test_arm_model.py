@@ -226,4 +226,4 @@ def test_length_hessian_matches_finite_differences(arm):
     theta, weight, eps = _poses(arm, 1, seed=7)[0], rng.uniform(0, 300, arm.n_muscles), 1e-6
     fd = np.stack([(arm.muscle_jacobian(theta + eps * e) - arm.muscle_jacobian(theta - eps * e)).T
                    @ weight / (2 * eps) for e in np.eye(arm.n_joints)], axis=1)
-    np.testing.assert_allclose(arm._length_hessian(theta, weight), fd, atol=1e-7)
+    np.testing.assert_allclose(arm.backend.length_hessian(theta, weight), fd, atol=1e-7)

@@ -135,7 +135,7 @@ def test_mimic_joint_follows_its_driven_leader_exactly(tmp_path):
         np.testing.assert_allclose(
             arm.gravity_torque(theta),
             _fd(lambda t: np.array([arm.potential_energy(t)]), theta)[0], atol=1e-6)
-        H = arm._length_hessian(theta, np.ones(arm.n_muscles))
+        H = arm.backend.length_hessian(theta, np.ones(arm.n_muscles))
         Hfd = _fd(lambda t: np.ones(arm.n_muscles) @ arm.muscle_jacobian(t), theta)
         np.testing.assert_allclose(H, Hfd, atol=1e-6)
     theta = np.array([0.1, -0.2])

@@ -161,15 +161,8 @@ class MujocoBackend:
     def length_hessian(self, theta: np.ndarray, weight: np.ndarray, cache=None) -> np.ndarray:
         """sum_i weight_i d²length_i/dtheta² (N, N) by central differences of ``ten_J``
         (MuJoCo has no second derivative of its wrapping)."""
-        theta = np.asarray(theta, dtype=np.float64)
-        H = np.empty((self.n_joints, self.n_joints))
         with self._lock:
-            for k in range(self.n_joints):
-                step = np.zeros(self.n_joints)
-                step[k] = _FD_STEP
-                up = self._ten_j(self._position(theta + step))
-                down = self._ten_j(self._position(theta - step))
-                H[:, k] = weight @ (up - down) / (2 * _FD_STEP)
+            H = _central_difference(lambda t: weight @ self._ten_j(self._position(t)), theta)
         return 0.5 * (H + H.T)
 
     def gravity(self, theta: np.ndarray) -> np.ndarray:
@@ -186,14 +179,8 @@ class MujocoBackend:
 
     def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
         """d g / d theta (N, N) by central differences of ``qfrc_bias``."""
-        theta = np.asarray(theta, dtype=np.float64)
-        D = np.empty((self.n_joints, self.n_joints))
         with self._lock:
-            for k in range(self.n_joints):
-                step = np.zeros(self.n_joints)
-                step[k] = _FD_STEP
-                D[:, k] = (self._bias(theta + step) - self._bias(theta - step)) / (2 * _FD_STEP)
-        return D
+            return _central_difference(self._bias, theta)
 
     def potential_energy(self, theta: np.ndarray) -> float:
         """-sum_b m_b gravity . com_b (J): its gradient is ``gravity``."""
@@ -250,3 +237,14 @@ class MujocoBackend:
 
         return {name(b): name(int(m.body_parentid[b])) for b in range(1, m.nbody)
                 if m.body_parentid[b] > 0}
+
+
+def _central_difference(f, theta: np.ndarray) -> np.ndarray:
+    """(len(f(theta)), N): column k is (f(theta + h e_k) - f(theta - h e_k)) / 2h."""
+    theta = np.asarray(theta, dtype=np.float64)
+    columns = []
+    for k in range(len(theta)):
+        step = np.zeros(len(theta))
+        step[k] = _FD_STEP
+        columns.append((f(theta + step) - f(theta - step)) / (2 * _FD_STEP))
+    return np.stack(columns, axis=1)
