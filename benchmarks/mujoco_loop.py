@@ -4,11 +4,13 @@ The description is ``fixtures/mujoco/planar_2dof.xml``; the arm behind the simul
 MuJoCo integrating ``planar_2dof_real.xml`` (a 29 mm shoulder pulley instead of 25 mm, links
 15 % and 25 % heavier, the elbow extensor inserted 4 mm further out):
 
-1. ``pimbs collect --plant`` a training recording (a stop — safety or a starved mock board —
-   is resumed with ``--resume`` and counted);
+1. ``pimbs collect --plant`` a training recording of ``--train-samples`` + ``--spare`` poses
+   (a pose the arm overloads or runs off is given up by the collection; a stop — safety or a
+   starved mock board — is resumed with ``--resume`` and counted);
 2. ``pimbs collect --plant`` NEW poses (another seed) with the geometric model: the baseline,
    and the evaluation set of ``pimbs train`` (so all training rows train);
-3. ``pimbs train`` (defaults: series-elastic ATL-Map, automatic α; ``--epochs`` as given);
+3. ``pimbs train`` on ``--train-samples`` of its rows (defaults: series-elastic ATL-Map,
+   automatic α; ``--epochs`` as given);
 4. ``pimbs collect --plant --schema MODEL`` the same new poses;
 5. ``pimbs estimate MODEL`` the joint angles of the new poses (beside the geometric model's),
    ``pimbs export --onnx`` and the ONNX lengths against the recorded ones;
@@ -91,6 +93,11 @@ def rows_in(path: Path) -> int:
     return read_recording(path).n_rows if path.exists() else 0
 
 
+def given_up(path: Path, planned: int) -> int:
+    """Planned poses the recording lacks (given up, or infeasible, by the collection)."""
+    return planned - rows_in(path)
+
+
 def short_stop(line: str) -> str:
     """The kind of stop, the muscle and the sample of a collection's one-line error."""
     head = line.removeprefix("Error: ").split(" on port ")[0].split(";")[0]
@@ -99,18 +106,19 @@ def short_stop(line: str) -> str:
     return ", ".join(x for x in (head, where and where.group(0), need and need.group(0)) if x)
 
 
-def pose_error_deg(path: Path, rows: np.ndarray | None = None) -> dict[str, list[float]]:
-    """rms, median and largest |θ − θ_command| per joint, degrees (of ``rows``, default all)."""
+def pose_error_deg(path: Path, samples: np.ndarray) -> dict[str, list[float]]:
+    """rms, median and largest |θ − θ_command| per joint, degrees, over the rows of
+    ``samples`` (sample indices: both collections of the new poses hold the same ones)."""
     rec = read_recording(path)
-    err = np.abs(rec.theta - rec.theta_command) * DEG
-    err = err if rows is None else err[rows]
+    err = (np.abs(rec.theta - rec.theta_command) * DEG)[np.isin(rec.sample, samples)]
     return {"rms": np.sqrt(np.mean(err ** 2, axis=0)).tolist(),
             "median": np.median(err, axis=0).tolist(), "max": err.max(axis=0).tolist()}
 
 
 def by_schema(path: Path) -> np.ndarray:
-    """Rows the schema commanded (not those that fell back to the geometric plan)."""
-    return np.asarray(read_recording(path).array("commanded_by"), str) != "geometric"
+    """Samples the schema commanded (not those that fell back to the geometric plan)."""
+    rec = read_recording(path)
+    return rec.sample[np.asarray(rec.array("commanded_by"), str) != "geometric"]
 
 
 def ratio_row(label: str, g: dict[str, list[float]], s: dict[str, list[float]]) -> str:
@@ -180,7 +188,9 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("bench-mujoco-loop"))
     ap.add_argument("--robot", type=Path, default=FIXTURES / "planar_2dof.xml")
     ap.add_argument("--plant", type=Path, default=FIXTURES / "planar_2dof_real.xml")
-    ap.add_argument("--train-samples", type=int, default=100)
+    ap.add_argument("--train-samples", type=int, default=100, help="rows the schema learns from")
+    ap.add_argument("--spare", type=int, default=10,
+                    help="poses planned beyond --train-samples, for those given up")
     ap.add_argument("--test-samples", type=int, default=20)
     ap.add_argument("--train-seed", type=int, default=1)
     ap.add_argument("--test-seed", type=int, default=2)
@@ -200,13 +210,16 @@ def main() -> None:
         not a.retrain and any(p.exists() for p in (w / "model" / "model.json",
                                                     w / "new-schema.parquet")))
 
-    train, train_stops = collect(w / "train.parquet", a.robot, a.plant, a.train_samples,
+    planned = a.train_samples + a.spare
+    train, train_stops = collect(w / "train.parquet", a.robot, a.plant, planned,
                                  a.train_seed, a.mock_speed)
+    n_train = min(a.train_samples, rows_in(train))
     geom, geom_stops = collect(w / "new-geometric.parquet", a.robot, a.plant, a.test_samples,
                                a.test_seed, a.mock_speed)
     model = w / "model"
     if a.retrain or not (model / "model.json").exists():
-        pimbs("train", train, "--eval", geom, "--epochs", a.epochs, "--threads", 1,
+        pimbs("train", train, "--eval", geom, "--n-train", n_train, "--epochs", a.epochs,
+              "--threads", 1,
               "--out", model, "--json", w / "train.json", "--force")
     trained = json.loads((w / "train.json").read_text())
     learned = w / "new-schema.parquet"
@@ -218,15 +231,16 @@ def main() -> None:
     est = json.loads((w / "estimate.json").read_text())
     pimbs("export", model, "--onnx", w / "model.onnx", "--force")
     sim = w / "sim.parquet"
-    pimbs("simulate", "--robot", a.robot, "--samples", a.train_samples, "--seed", a.train_seed,
+    pimbs("simulate", "--robot", a.robot, "--samples", planned, "--seed", a.train_seed,
           "--out", sim, "--force")
     pimbs("diagnose", train, "--reference", sim, "--json", w / "diagnose.json", "--force")
     diag = json.loads((w / "diagnose.json").read_text())
     speed = None if a.quick else plant_speed()
 
     joints = read_recording(geom).joints
-    g, s = pose_error_deg(geom), pose_error_deg(learned)
-    mine = by_schema(learned)
+    both = np.intersect1d(read_recording(geom).sample, read_recording(learned).sample)
+    g, s = pose_error_deg(geom, both), pose_error_deg(learned, both)
+    mine = np.intersect1d(by_schema(learned), both)
     g_mine, s_mine = pose_error_deg(geom, mine), pose_error_deg(learned, mine)
     by = commanded_by(learned)
     epochs = trained.get("epochs", a.epochs)
@@ -236,15 +250,18 @@ def main() -> None:
         "```",
         f"description {rel(a.robot)}; plant (MuJoCo, mj_step) {rel(a.plant)}; "
         f"--mock-speed {a.mock_speed:g}",
-        f"1. collect: {read_recording(train).n_rows} samples (seed {a.train_seed}), "
+        f"1. collect: {read_recording(train).n_rows} of {planned} planned poses recorded "
+        f"(seed {a.train_seed}; {given_up(train, planned)} given up by the collection), "
         f"{len(train_stops)} stops resumed" + "".join(f"\n     stop: {x}" for x in train_stops),
         f"2. train: ATL-Map defaults, {epochs} epochs"
         + (f" (kept epoch {kept})" if kept is not None else "")
-        + f", {trained.get('seconds', float('nan')):.0f} s; all {read_recording(train).n_rows} "
-        f"rows train; length error on the new poses "
+        + f", {trained.get('seconds', float('nan')):.0f} s; {n_train} rows train; length "
+        f"error on the new poses "
         f"{trained.get('eval_rms_mm', float('nan')):.3f} mm rms (geometric model "
         f"{geometric_length_rms_mm(a.robot, geom):.3f} mm)",
-        f"3. {read_recording(geom).n_rows} new poses (seed {a.test_seed}) on the plant, "
+        f"3. {len(both)} new poses (seed {a.test_seed}) that both collections hold "
+        f"({given_up(geom, a.test_samples)} given up with the geometric model, "
+        f"{given_up(learned, a.test_samples)} with the schema) on the plant, "
         f"pose error |θ − θ_command| [°, {' / '.join(joints)}]:",
         "| commanded by | rms | median | max |",
         "|---|---|---|---|",
@@ -254,12 +271,12 @@ def main() -> None:
         f"{len(schema_stops)} stops) | {fmt(s['rms'])} | {fmt(s['median'])} | "
         f"{fmt(s['max'])} |",
         ratio_row("geometric ÷ schema", g, s),
-        *([] if mine.all() else [
-            f"| geometric model, the {mine.sum()} poses the schema commanded | "
+        *([] if len(mine) == len(both) else [
+            f"| geometric model, the {len(mine)} poses the schema commanded | "
             f"{fmt(g_mine['rms'])} | {fmt(g_mine['median'])} | {fmt(g_mine['max'])} |",
-            f"| learned schema, the same {mine.sum()} poses | {fmt(s_mine['rms'])} | "
+            f"| learned schema, the same {len(mine)} poses | {fmt(s_mine['rms'])} | "
             f"{fmt(s_mine['median'])} | {fmt(s_mine['max'])} |",
-            ratio_row(f"geometric ÷ schema, those {mine.sum()}", g_mine, s_mine)]),
+            ratio_row(f"geometric ÷ schema, those {len(mine)}", g_mine, s_mine)]),
         f"4. estimate (joint angles of the new poses from lengths and tensions) [° rms]: "
         f"schema {fmt(est['rms_error_deg'])}, geometric {fmt(est['geometric_rms_error_deg'])}",
         f"   export --onnx: ONNX lengths vs recorded on the training rows "

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_hw.collection.move import MoveConfig
-from pimbs_hw.collection.plan import CollectionPlan
+from pimbs_hw.collection.plan import MAX_POSE_EXCURSION, CollectionPlan
 from pimbs_hw.collection.resume import collection_meta, open_recording
 from pimbs_hw.collection.routine import Collector
 from pimbs_hw.collection.schema_plan import SchemaPlan
@@ -91,13 +91,28 @@ def test_schema_is_anchored_a_little_beyond_its_range_and_unused_far_beyond(mode
     assert t.commanded_by == "geometric" and "tension far outside" in t.note
 
 
-def test_lengths_the_geometric_model_calls_dangerous_are_never_commanded(model, true_arm):
-    """A schema 12 mm short on every wire: the model predicts wires far above f_max."""
+def test_a_schema_that_moves_a_path_beyond_its_wires_stretch_is_never_used(model, true_arm):
+    """A schema 12 mm short on every wire: more than a wire stretches from slack to f_max
+    (6.4 mm at K = 1000), so not this arm: the geometric plan commands the pose."""
     t = SchemaPlan(model, ArmSchema(true_arm, offset=-0.012), 3, seed=4).target(1)
     g = CollectionPlan(model, 3, seed=4).target(1)
-    assert t.commanded_by == "geometric" and "predicts" in t.note
+    assert t.commanded_by == "geometric"
+    assert "the schema moves m0's path -12.4 mm from the description's" in t.note
     np.testing.assert_array_equal(t.approach_length, g.approach_length)
     np.testing.assert_array_equal(t.hold_command, g.hold_command)
+
+
+def test_the_geometric_verdict_takes_the_schemas_correction_out(model, true_arm):
+    """Every real path 5 mm shorter than described: seen by the description, the schema's
+    held lengths are 5 mm short and would pull the arm more than 0.2 rad off the pose;
+    judged in the description's frame, they are the pose's own, and the schema commands."""
+    schema = ArmSchema(true_arm, offset=-0.005)
+    t = SchemaPlan(model, schema, 3, seed=4).target(1)
+    assert t.commanded_by == "schema" and not t.note
+    eq = model.equilibrium(list(t.hold_mode), t.hold_command, theta0=t.theta)
+    assert np.abs(eq.theta - t.theta).max() > MAX_POSE_EXCURSION  # what the raw verdict says
+    np.testing.assert_allclose(t.hold_command[t.held],
+                               schema.length(t.theta, t.tension)[t.held], atol=1e-12)
 
 
 def test_schema_of_another_arm_is_refused(model):

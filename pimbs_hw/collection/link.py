@@ -6,6 +6,8 @@ real driver, the mock bus and a plain in-process stand-in in unit tests alike.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -90,3 +92,63 @@ class ApproachLink:
 
     def begin_sample(self, index: int) -> None:
         self.link.begin_sample(index)
+
+
+class Overload(Exception):
+    """The arm did what no command for this sample asked: a muscle pulled past the load
+    limit, or the joints ran away from the pose. ``reading`` is the one that showed it."""
+
+    def __init__(self, what: str, reading: Reading, muscle: int | None = None) -> None:
+        self.what, self.reading, self.muscle = what, reading, muscle
+        super().__init__(what)
+
+
+class LoadGuard:
+    """An ``ArmLink`` that raises ``Overload`` while armed (``watching``): a reading above
+    ``limit`` (N per muscle), or, once a pose is given, joint encoders further than
+    ``excursion`` (rad) from it.
+
+    The boards' own ceiling stops the whole collection and relaxes the arm. A description
+    that underestimates a load (a heavier link, a bigger pulley) reaches it on the poses where
+    the plan is already high, and moment arms it gets wrong can leave a joint whose muscles
+    are all tension-controlled out of balance, so the arm runs off and slams a held wire;
+    every other pose is fine. Watching below the boards' ceiling lets the routine unload that
+    one pose and go on.
+    """
+
+    def __init__(self, link: Any, limit: np.ndarray, excursion: float,
+                 muscles: tuple[str, ...]) -> None:
+        self.link, self.limit, self.excursion = link, np.asarray(limit, float), excursion
+        self.muscles, self.armed = muscles, False
+        self.pose: np.ndarray | None = None
+
+    def __getattr__(self, name: str) -> Any:  # approach, relax, begin_sample: the link's
+        return getattr(self.link, name)
+
+    @contextmanager
+    def watching(self) -> Iterator[None]:
+        """Armed inside the block only (unloading a pose must not raise again)."""
+        self.armed, self.pose = True, None
+        try:
+            yield
+        finally:
+            self.armed, self.pose = False, None
+
+    def command(self, mode: tuple[str, ...] | str, values: np.ndarray) -> None:
+        self.link.command(mode, values)
+
+    def read(self) -> Reading:
+        reading = self.link.read()
+        if not self.armed:
+            return reading
+        over = np.flatnonzero(reading.tension > self.limit)
+        if over.size:
+            k = int(over[np.argmax(reading.tension[over] - self.limit[over])])
+            raise Overload(f"{self.muscles[k]} pulled {reading.tension[k]:.0f} N (load limit "
+                           f"{self.limit[k]:.0f} N)", reading, k)
+        if self.pose is not None and reading.theta is not None:
+            off = np.abs(reading.theta - self.pose)
+            if off.max() > self.excursion:
+                raise Overload(f"the joints ran {off.max():.2f} rad off the pose (limit "
+                               f"{self.excursion:g} rad)", reading)
+        return reading

@@ -54,22 +54,57 @@ class Ramp:
 
 
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
-          path=None) -> Ramp:
+          path=None, tension_span: np.ndarray | None = None) -> Ramp:
+    """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
+    to go through, limited like a tension command's (the steps and the rate)."""
     delta = np.abs(end - start)
-    steps = np.where(is_length, cfg.length_step, cfg.tension_step)
-    rates = np.where(is_length, cfg.length_rate, cfg.tension_rate) * cfg.speed
-    n = max(1, int(np.ceil(np.max(delta / steps))))
+    steps = delta / np.where(is_length, cfg.length_step, cfg.tension_step)
+    seconds = delta / (np.where(is_length, cfg.length_rate, cfg.tension_rate) * cfg.speed)
+    if tension_span is not None:
+        steps = np.maximum(steps, tension_span / cfg.tension_step)
+        seconds = np.maximum(seconds, tension_span / (cfg.tension_rate * cfg.speed))
+    n = max(1, int(np.ceil(np.max(steps))))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
     commands[-1] = end
-    return Ramp(mode, commands, float(np.max(delta / rates)))
+    return Ramp(mode, commands, float(np.max(seconds)))
+
+
+def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.ndarray,
+             end: np.ndarray, cfg: MoveConfig, mode) -> Ramp:
+    """Mixed commands from ``start`` to ``end``, held muscles' lengths spaced evenly in the
+    tension the model expects of them, not in length.
+
+    An elastic element stiffens with its load (df/dl = K(f + 1)): a millimetre is a few
+    newtons near the pretension and hundreds near f_max. Even length steps would load a held
+    wire in a few jerks at the top, and under real dynamics (an arm with inertia and little
+    damping) each jerk rings; even tension steps load it as gently as a tension command.
+    """
+    h = model.h_geom(theta)  # a held muscle's length l pulls f(h - l), as the model sees it
+    f0 = np.where(held, model.tension_from_stretch(h - start), 0.0)
+    f1 = np.where(held, model.tension_from_stretch(h - end), 0.0)
+    s0, s1 = model.stretch(f0), model.stretch(f1)
+    moving = held & (np.abs(s1 - s0) > 1e-12)
+
+    def path(x: float) -> np.ndarray:
+        w = np.where(moving, (model.stretch(f0 + x * (f1 - f0)) - s0)
+                     / np.where(moving, s1 - s0, 1.0), x)
+        return start + w * (end - start)
+
+    return _ramp(mode, start, end, held, cfg, path, np.where(held, np.abs(f1 - f0), 0.0))
 
 
 def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) -> Ramp:
-    """Unload the old pose: the slack removal of ``previous`` run backwards."""
-    start = np.where(previous.held, now.length, now.tension)
+    """Unload the old pose: the slack removal of ``previous`` run backwards.
+
+    Each muscle starts where it is (bumpless), a tension-controlled one at no more than the
+    plan ever asked of it: a wire reading far above its command (snagged, or mid-swing when
+    a pose is given up) is not to be held there.
+    """
+    asked = np.maximum(previous.hold_command, previous.overshoot_command)
+    start = np.where(previous.held, now.length, np.minimum(now.tension, asked))
     end = np.where(previous.held, previous.approach_length, _pretension(model, previous))
-    return _ramp(previous.hold_mode, start, end, previous.held, cfg)
+    return _loading(model, previous.theta, previous.held, start, end, cfg, previous.hold_mode)
 
 
 def _pretension(model: ArmModel, target: Target) -> np.ndarray:
@@ -92,7 +127,7 @@ def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
                  np.ones(model.n_muscles, bool), cfg, path)
 
 
-def take_up_slack(now: Reading, target: Target, cfg: MoveConfig,
+def take_up_slack(model: ArmModel, now: Reading, target: Target, cfg: MoveConfig,
                   end: np.ndarray | None = None) -> Ramp:
     """Mixed commands in ``target.hold_mode`` from the current readings to the holding.
 
@@ -101,7 +136,7 @@ def take_up_slack(now: Reading, target: Target, cfg: MoveConfig,
     """
     start = np.where(target.held, now.length, now.tension)
     end = target.hold_command if end is None else end
-    return _ramp(target.hold_mode, start, end, target.held, cfg)
+    return _loading(model, target.theta, target.held, start, end, cfg, target.hold_mode)
 
 
 def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:

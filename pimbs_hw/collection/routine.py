@@ -9,6 +9,17 @@ one row. The slack removal overshoots the holding and comes back (``plan.Target.
 so each muscle's last motion, and with it the capstan friction, has a known direction. The
 row is on disk (atomically) before the next pose is commanded, so an interruption of any kind
 loses at most the sample in progress.
+
+Between poses the slack removal is undone and the joints come to rest before the next move
+starts: under real dynamics an arm released at low tension swings, and a move commanded
+from a snapshot of a swinging arm runs it into a length-held wire.
+
+From the move on, the routine watches below the boards' ceiling (``link.LoadGuard``): a wire
+past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
+the slack removal starts, gives that pose up: it is unloaded from where the arm is, recorded
+as skipped with a warning naming what happened, and the collection goes on. A description
+that gets a load or a moment arm wrong fails on a few poses, not the whole collection; the
+boards' ceiling still stops everything that the guard cannot see coming.
 """
 
 from __future__ import annotations
@@ -24,9 +35,9 @@ import numpy as np
 
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.estimate import estimate_theta
-from pimbs_hw.collection.link import ApproachLink, ArmLink, Reading
+from pimbs_hw.collection.link import ApproachLink, ArmLink, LoadGuard, Overload, Reading
 from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
-from pimbs_hw.collection.plan import CollectionPlan, Target
+from pimbs_hw.collection.plan import MAX_POSE_EXCURSION, CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 from pimbs_hw.collection.temperature import filled
 from pimbs_recording.format import RecordingWriter
@@ -34,6 +45,11 @@ from pimbs_recording.format import RecordingWriter
 # m: how far short of the overshoot the final approach may start; its last motion is then still
 # APPROACH_TRAVEL - OVERSHOOT_TOL = 1.1 mm, beyond a full friction reversal (2 bands, 1 mm)
 OVERSHOOT_TOL = 3e-4
+# fraction of f_max past which the routine gives a pose up (unloads it and goes on): above
+# every command of a plan (PLAN_CEILING 0.9), below the boards' ceiling, which stops it all
+LOAD_LIMIT = 0.95
+
+Holding = tuple[tuple[str, ...] | str, np.ndarray]  # (mode, command) sent while holding
 
 
 @dataclass
@@ -102,7 +118,9 @@ class Collector:
                  writer: RecordingWriter, start: int, settle: SettleConfig,
                  reporter: Reporter | None = None, move: MoveConfig | None = None,
                  now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC)) -> None:
-        self.link = ApproachLink(link, model.n_muscles)
+        f_max = np.array([m.f_max for m in model.robot.muscles])
+        self.link = LoadGuard(ApproachLink(link, model.n_muscles), LOAD_LIMIT * f_max,
+                              MAX_POSE_EXCURSION, model.muscles)
         self.model, self.plan, self.writer = model, plan, writer
         self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
         self.move = move or MoveConfig()
@@ -114,10 +132,11 @@ class Collector:
         reading = self.link.read()  # the first pose is approached from where the arm is
         theta = self._theta(reading, np.zeros(self.model.n_joints))
         previous = None  # target the arm is loaded at (None: relaxed)
+        holding: Holding | None = None  # what the arm holds between samples (None: read only)
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
             try:
-                target = self._next_target(i, previous)
+                target = self._next_target(i, holding)
             except InfeasiblePoseError as exc:
                 self.summary.skipped.append(i)
                 self._warn(f"sample {i} skipped: {exc}")
@@ -125,27 +144,68 @@ class Collector:
                 continue
             if target.note:
                 self._warn(f"sample {i}: {target.note}")
-            model, muscles, cfg = self.model, self.model.muscles, self.move
             if previous is not None:
-                reading = run_ramp(self.link, release(model, reading, previous, cfg))
-            run_ramp(self.link, move(model, reading, theta, target, cfg))
-            moved = hold_until_settled(self.link, "length", target.approach_length,
-                                       self.settle.reached(), muscles)
-            previous = target
-            run_ramp(self.link, take_up_slack(moved.reading, target, cfg,
-                                              target.overshoot_command))
-            over = hold_until_settled(self.link, target.hold_mode, target.overshoot_command,
-                                      self._overshot(target), muscles)
-            run_ramp(self.link, take_up_slack(over.reading, target, cfg))
-            held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
-                                      self.settle, muscles)
+                reading, _ = self._unload(previous, reading)
+            try:
+                held = self._load(target, reading, theta)
+            except Overload as over:
+                reading, holding = self._give_up(i, target, over)
+                previous, theta = None, self._theta(reading, target.theta)
+                continue
+            previous, holding = target, (target.hold_mode, target.hold_command)
             row = self._row(i, target.theta, held)
             if target.commanded_by:
                 row["commanded_by"] = target.commanded_by
-            self._append_holding(row, target)
+            self._append_holding(row, holding)
             reading, theta = held.reading, row["theta"]
             self._account(i, held, row)
         return self.summary
+
+    def _load(self, target: Target, reading: Reading, theta: np.ndarray) -> Settled:
+        """Move to the pose at low tension, remove the slack past the holding and back, and
+        settle (``Overload`` if a muscle pulls past the load limit on the way)."""
+        model, muscles, cfg = self.model, self.model.muscles, self.move
+        with self.link.watching():
+            run_ramp(self.link, move(model, reading, theta, target, cfg))
+            moved = hold_until_settled(self.link, "length", target.approach_length,
+                                       self.settle.reached(), muscles)
+            self.link.pose = target.theta  # from here on the arm stays near the pose
+            run_ramp(self.link, take_up_slack(model, moved.reading, target, cfg,
+                                              target.overshoot_command))
+            over = hold_until_settled(self.link, target.hold_mode, target.overshoot_command,
+                                      self._overshot(target), muscles)
+            run_ramp(self.link, take_up_slack(model, over.reading, target, cfg))
+            return hold_until_settled(self.link, target.hold_mode, target.hold_command,
+                                      self.settle, muscles)
+
+    def _give_up(self, i: int, target: Target, over: Overload) -> tuple[Reading, Holding]:
+        """Unload the pose the arm ran off or overloaded, record it as skipped and warn; the
+        arm then holds the low-tension approach of that pose."""
+        reading, holding = self._unload(target, over.reading)
+        s = self.summary
+        s.skipped.append(i)
+        s.next_sample = i + 1
+        if over.muscle is None:
+            why = ("the muscles the plan holds it with do not balance this pose on the arm "
+                   "(moment arms or loads other than the description's)")
+        else:
+            why = (f"the plan holds it at {target.tension[over.muscle]:.0f} N: the arm needs "
+                   "more there than its description says (a heavier link, a longer moment "
+                   "arm), or the wire snagged")
+        self._warn(f"sample {i} given up: {over}; {why}. The pose was unloaded and the "
+                   "collection goes on")
+        return reading, holding
+
+    def _unload(self, target: Target, reading: Reading) -> tuple[Reading, Holding]:
+        """The slack removal of ``target`` undone from where the arm is (bumpless in every
+        phase: each muscle starts at its reading), then wait for the joints to rest: the
+        next move starts from where the arm is, and a swinging arm is not there for long."""
+        ramp = release(self.model, reading, target, self.move)
+        run_ramp(self.link, ramp)
+        holding = (ramp.mode, ramp.commands[-1])
+        rested = hold_until_settled(self.link, *holding, self.settle.reached(),
+                                    self.model.muscles)
+        return rested.reading, holding
 
     def _overshot(self, target: Target) -> SettleConfig:
         """Reached the overshoot: every motor within ``OVERSHOOT_TOL`` of it (in length, or
@@ -165,30 +225,30 @@ class Collector:
                 # extra columns: how the sample settled (data quality, kept by all tools)
                 "settled": bool(held.settled), "settle_s": float(held.elapsed)}
 
-    def _append_holding(self, row: dict[str, Any], target: Target) -> None:
+    def _append_holding(self, row: dict[str, Any], holding: Holding) -> None:
         """Write the row while still holding the pose (commands feed the board watchdogs).
 
         Each append rewrites the file with fsync: tens of ms at 500 rows here, longer on a
         slow disk, which must not starve the 0.25 s watchdog. The next pose is commanded only
         once the row is on disk; a stop while writing still waits for the write to finish.
         """
-        self._holding(target, lambda: self.writer.append(row))  # RecordingWriteError raises
+        self._holding(holding, lambda: self.writer.append(row))  # RecordingWriteError raises
 
-    def _next_target(self, i: int, previous: Target | None) -> Target:
-        """Plan sample ``i`` while the arm still holds ``previous`` (or, relaxed, is read): a
+    def _next_target(self, i: int, holding: Holding | None) -> Target:
+        """Plan sample ``i`` while the arm still holds the last pose (or, relaxed, is read): a
         plan takes several equilibrium solves (more with a learned schema), longer than a
         watchdog period."""
-        return self._holding(previous, lambda: self.plan.target(i))
+        return self._holding(holding, lambda: self.plan.target(i))
 
-    def _holding(self, target: Target | None, work: Callable[[], Any]) -> Any:
-        """``work()`` in a worker thread while ``target``'s holding is commanded (None: the
-        arm is only read); its result."""
+    def _holding(self, holding: Holding | None, work: Callable[[], Any]) -> Any:
+        """``work()`` in a worker thread while ``holding`` (mode, command) is commanded (None:
+        the arm is only read); its result."""
         with concurrent.futures.ThreadPoolExecutor(1, "collection-worker") as pool:
             done = pool.submit(work)
             try:
                 while not done.done():
-                    if target is not None:
-                        self.link.command(target.hold_mode, target.hold_command)
+                    if holding is not None:
+                        self.link.command(*holding)
                     self.link.read()
                     concurrent.futures.wait([done], timeout=self.settle.poll)
             finally:

@@ -17,10 +17,14 @@ A schema is trusted where it was trained. A little beyond its training ranges (u
 ``EXTRAPOLATION_BAND`` of a range) it is anchored: the schema at the nearest trained point
 plus the geometric model's change from there (``EdgeAnchored``), so a network never
 extrapolates on its own; the row says ``schema+geometric``. Further out, a QP that the
-schema's G cannot satisfy, or commands under which the geometric model predicts a wire above
+schema's G cannot satisfy, a schema that moves a path by more than its wire stretches from
+slack to f_max, or commands under which the geometric model predicts a wire above
 ``OVERSHOOT_CEILING``·f_max or the arm far from the pose, the sample falls back to the
 geometric plan. Every such sample carries a note saying why (the collection warns) and each
-row records ``commanded_by``.
+row records ``commanded_by``. The geometric model judges the commands in its own frame, with
+the schema's correction of each path at the pose taken out: where the description is wrong
+(the very reason to command with a schema) it would otherwise see every corrected length as
+a wire pulled too short, and send the poses the schema knows best back to the geometry.
 """
 
 from __future__ import annotations
@@ -130,10 +134,13 @@ class SchemaPlan(CollectionPlan):
         # (the geometric plan's: every wire at the pretension).
         approach_length = (model.length(theta, self.pretension)
                            + (learned - model.length(theta, tension)))
+        correction = learned - model.length(theta, tension)
+        self._check_correction(correction)
         ceiling = np.maximum(OVERSHOOT_CEILING * self.f_max, tension)
-        self._check(("length",) * model.n_muscles, approach_length, theta, ceiling,
-                    "approach")
-        self._check(hold_mode, hold_command, theta, ceiling, "holding")
+        self._check(("length",) * model.n_muscles, approach_length - correction, theta,
+                    ceiling, "approach")
+        self._check(hold_mode, np.where(held, hold_command - correction, hold_command), theta,
+                    ceiling, "holding")
         approach, overshoot = self._overshoot(i, theta, tension, held, hold_mode, hold_command)
         note = (f"outside the schema's training range ({'; '.join(outside)}): commanded with "
                 "the schema at the nearest trained point and the geometric model beyond it"
@@ -160,9 +167,23 @@ class SchemaPlan(CollectionPlan):
                 return f
         raise Unsafe("the tensions do not settle with the schema's G(θ, f)")
 
+    def _check_correction(self, correction: np.ndarray) -> None:
+        """The schema's correction of each path within the wire's whole stretch (slack to
+        f_max): a schema that moves a path further than that is not describing this arm."""
+        bound = self.model.stretch(self.f_max)
+        far = np.flatnonzero(np.abs(correction) > bound)
+        if far.size:
+            k = int(far[0])
+            raise Unsafe(f"the schema moves {self.model.muscles[k]}'s path "
+                         f"{correction[k] * 1e3:+.1f} mm from the description's, more than "
+                         f"the wire stretches from slack to f_max ({bound[k] * 1e3:.1f} mm)")
+
     def _check(self, mode: tuple[str, ...], command: np.ndarray, theta: np.ndarray,
                ceiling: np.ndarray, what: str) -> None:
-        """The geometric model's verdict on commands: the arm near the pose, no wire high."""
+        """The geometric model's verdict on commands, given in its own frame (the schema's
+        correction of each path at the pose taken out): the arm near the pose, no wire
+        high. What it judges is the schema's tensions and moment arms; its lengths are
+        judged by ``_check_correction``."""
         try:
             eq = self.model.equilibrium(list(mode), command, theta0=theta)
         except Exception as exc:  # noqa: BLE001 - no prediction: do not trust the commands

@@ -1,0 +1,129 @@
+"""A pose the arm overloads or runs off is given up, unloaded, and the collection goes on.
+
+A description that gets a load or a moment arm wrong holds most poses fine and a few not: a
+wire pulled far beyond its plan, or a joint whose tension-controlled muscles do not balance
+and swings off. The boards' ceiling would stop the whole collection there; the routine
+watches below it, unloads that one pose (the slack removal undone from where the arm is),
+records it as skipped with a warning that names what happened, and collects the rest.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+
+from pimbs_arm.model import ArmModel
+from pimbs_hw.collection.link import LoadGuard, Overload, Reading
+from pimbs_hw.collection.move import MoveConfig
+from pimbs_hw.collection.plan import CollectionPlan
+from pimbs_hw.collection.resume import collection_meta, open_recording
+from pimbs_hw.collection.routine import LOAD_LIMIT, Collector
+from pimbs_hw.collection.session import open_link
+from pimbs_hw.collection.settle import SettleConfig
+from pimbs_recording.format import read_recording
+
+SPEED = 5.0  # the simulated arm's time speed-up: its physics shares this process's CPU
+
+
+class Disturbed:
+    """The simulated arm's link, with something the description does not know at one sample:
+    from the slack removal on (mixed length/tension commands), ``extra`` N more on one
+    wire's loadcell (a snag) or the joints ``swing`` rad off (a pose that runs away).
+    Records every command, with the sample it belongs to."""
+
+    def __init__(self, link, sample: int, muscle: int = 0, extra: float = 0.0,
+                 swing: float = 0.0) -> None:
+        self.link, self.sample, self.muscle, self.extra, self.swing = (
+            link, sample, muscle, extra, swing)
+        self.i, self.mixed, self.sent = -1, False, []
+
+    def begin_sample(self, index: int) -> None:
+        self.i = index
+        self.link.begin_sample(index)
+
+    def command(self, mode, values) -> None:
+        self.mixed = not isinstance(mode, str)
+        self.sent.append((self.i, mode, np.array(values, float)))
+        self.link.command(mode, values)
+
+    def read(self) -> Reading:
+        r = self.link.read()
+        if self.i != self.sample or not self.mixed:
+            return r
+        tension = r.tension.copy()
+        tension[self.muscle] += self.extra
+        return dataclasses.replace(r, tension=tension, theta=r.theta + self.swing)
+
+    def relax(self) -> None:
+        self.link.relax()
+
+
+@pytest.fixture(scope="module")
+def model() -> ArmModel:
+    return ArmModel.load("two-link-4-muscle")
+
+
+def _collect(path, model, disturb: dict) -> tuple[Collector, Disturbed]:
+    plan = CollectionPlan(model, 4, seed=4)
+    meta = collection_meta(model, plan.meta(), port="virtual", simulated=True, settle={},
+                           move={})
+    writer, start = open_recording(path, meta, False)
+    with open_link("virtual", model.robot, seed=4, speed=SPEED) as link:
+        arm = Disturbed(link, sample=2, **disturb)
+        collector = Collector(arm, model, plan, writer, start, SettleConfig(window=0.06),
+                              move=MoveConfig(speed=SPEED))
+        collector.run()
+    return collector, arm
+
+
+def test_a_snagged_wire_gives_up_its_pose_and_the_collection_goes_on(model, tmp_path):
+    f_max = model.robot.muscles[1].f_max
+    collector, arm = _collect(tmp_path / "snag.parquet", model,
+                              {"muscle": 1, "extra": f_max})
+    s = collector.summary
+    assert s.complete and s.skipped == [2]
+    assert read_recording(tmp_path / "snag.parquet").sample.tolist() == [0, 1, 3]
+    (warning,) = [w for w in s.warnings if "given up" in w]
+    assert warning.startswith("sample 2 given up: m1 pulled ")
+    assert f"(load limit {LOAD_LIMIT * f_max:.0f} N)" in warning
+    assert "the plan holds it at" in warning
+    # the pose was unloaded: the last commands of sample 2 are the low-tension approach
+    plan = CollectionPlan(model, 4, seed=4)
+    target = plan.target(2)
+    _, mode, last = [c for c in arm.sent if c[0] == 2][-1]
+    assert mode == target.hold_mode
+    np.testing.assert_allclose(last[target.held], target.approach_length[target.held])
+    floor = np.array([m.f_floor for m in model.robot.muscles])
+    np.testing.assert_allclose(last[~target.held], floor[~target.held], rtol=1e-6)
+
+
+def test_a_pose_that_runs_away_is_given_up(model, tmp_path):
+    collector, _ = _collect(tmp_path / "swing.parquet", model, {"swing": 0.3})
+    s = collector.summary
+    assert s.complete and s.skipped == [2]
+    (warning,) = [w for w in s.warnings if "given up" in w]
+    assert re.match(r"sample 2 given up: the joints ran 0\.3\d rad off the pose", warning)
+    assert "do not balance this pose" in warning
+
+
+def test_the_guard_watches_only_while_loading():
+    reading = Reading(np.zeros(2), np.array([10.0, 700.0]), np.zeros(2), np.zeros(1))
+
+    class Fixed:
+        def read(self) -> Reading:
+            return reading
+
+    guard = LoadGuard(Fixed(), np.array([570.0, 570.0]), 0.2, ("a", "b"))
+    assert guard.read() is reading  # unloading a pose never raises
+    with guard.watching(), pytest.raises(Overload, match="b pulled 700 N"):
+        guard.read()
+    assert not guard.armed
+    reading = Reading(np.zeros(2), np.array([10.0, 20.0]), np.zeros(2), np.array([0.5]))
+    with guard.watching():
+        assert guard.read() is reading  # moving toward the pose: no pose to stay near yet
+        guard.pose = np.zeros(1)
+        with pytest.raises(Overload, match="ran 0.50 rad off the pose"):
+            guard.read()
