@@ -151,3 +151,53 @@ def test_collect_on_a_mujoco_plant_records_the_plant_not_the_description(tmp_pat
     assert rec.n_rows == 3 and rec.array("settled").all()
     arm = ArmModel.load(ARMS / "planar_2dof.xml")
     assert np.abs(rec.length - arm.length(rec.theta, rec.tension)).max() > 5e-4
+
+
+def _with_tendon_friction(tmp_path, newtons: float) -> Path:
+    """The planar arm with MuJoCo tendon friction loss on every wire (its own physics)."""
+    xml = PLANAR.read_text().replace('<spatial name="shoulder_flexor" width="0.002">',
+                                     f'<spatial name="shoulder_flexor" width="0.002" '
+                                     f'frictionloss="{newtons}">')
+    xml = xml.replace('<spatial name="shoulder_extensor" width="0.002">',
+                      f'<spatial name="shoulder_extensor" width="0.002" '
+                      f'frictionloss="{newtons}">')
+    path = tmp_path / "planar_friction.xml"
+    path.write_text(xml)
+    return path
+
+
+def test_tendon_friction_makes_where_the_arm_rests_depend_on_the_way_in(tmp_path):
+    """Friction hysteresis: the same length commands, approached from either side, rest at
+    two angles with MuJoCo's tendon friction loss, and at one without it."""
+    arm = ArmModel.load(PLANAR)
+    target = np.array([0.1, 0.0])
+    f = arm.tension_distribution(target, 40.0)
+
+    def rest_from(plant: MujocoPlant, side: float) -> float:
+        plant.command(("length",) * arm.n_muscles,
+                      arm.length(target + [side, 0.0], arm.tension_distribution(
+                          target + [side, 0.0], 40.0)))
+        _settle(plant)
+        plant.command(("length",) * arm.n_muscles, arm.length(target, f))
+        _settle(plant)
+        return float(plant.state.theta[0])
+
+    def band(xml: Path) -> float:
+        return abs(rest_from(MujocoPlant(xml, arm), +0.15) - rest_from(MujocoPlant(xml, arm),
+                                                                       -0.15))
+
+    assert band(PLANAR) < 1e-4  # measured 4e-6 rad
+    assert band(_with_tendon_friction(tmp_path, 15.0)) > 1e-3  # measured 2.2e-3 rad
+
+
+def test_collect_settles_on_a_plant_with_tendon_friction(tmp_path):
+    from pimbs_recording.format import read_recording
+
+    out = tmp_path / "friction.parquet"
+    res = CliRunner().invoke(main, [
+        "collect", "--port", "virtual", "--robot", str(PLANAR),
+        "--plant", str(_with_tendon_friction(tmp_path, 8.0)), "--samples", "3", "--seed", "1",
+        "--mock-speed", "5", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_rows == 3 and rec.array("settled").all()
