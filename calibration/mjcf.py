@@ -54,7 +54,7 @@ class MjcfTendon:
     name: str
     spatial: bool
     route: tuple[str, ...]  # "site a", "cylinder pulley_geom", "pulley /2", ... in file order
-    force_limit: float | None  # largest |forcerange| of a force-limited actuator on it, N
+    force_limit: float | None  # largest tension an actuator on it declares, N
     length_range: tuple[float, float] | None  # the tendon's own length limits (m), if limited
 
 
@@ -160,15 +160,34 @@ def _route(model: mujoco.MjModel, tendon: int) -> tuple[str, ...]:
 
 
 def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
-    """Tendon id -> the largest |force| a force-limited actuator on it may apply (N)."""
+    """Tendon id -> the largest tension an actuator on it declares (N).
+
+    A force-limited actuator declares its largest |forcerange|; a MuJoCo muscle that is not
+    force-limited declares its peak active force F0 (``force``, or MuJoCo's own rule when
+    that is negative: ``scale / acc0``). The tendon carries |gear| times the actuator's
+    force. Several actuators on one tendon: the largest.
+    """
     limits: dict[int, float] = {}
     for a in range(model.nu):
         if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_TENDON):
             continue
-        if not model.actuator_forcelimited[a]:
+        if model.actuator_forcelimited[a]:
+            bound = float(np.abs(model.actuator_forcerange[a]).max())
+        elif int(model.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_MUSCLE):
+            bound = _muscle_peak_force(model, a)
+        else:
             continue
-        tendon = int(model.actuator_trnid[a, 0])
-        bound = float(np.abs(model.actuator_forcerange[a]).max())
+        bound *= abs(float(model.actuator_gear[a, 0]))
         if bound > 0:
+            tendon = int(model.actuator_trnid[a, 0])
             limits[tendon] = max(limits.get(tendon, 0.0), bound)
     return limits
+
+
+def _muscle_peak_force(model: mujoco.MjModel, actuator: int) -> float:
+    """A muscle actuator's peak active force F0 (N): ``force`` (gainprm[2]), or, where that
+    is negative, the rule MuJoCo's muscle gain applies at every step: ``scale / acc0``."""
+    force, scale = (float(v) for v in model.actuator_gainprm[actuator, 2:4])
+    if force >= 0:
+        return force
+    return scale / max(float(model.actuator_acc0[actuator]), mujoco.mjMINVAL)

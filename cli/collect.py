@@ -61,8 +61,9 @@ def _stop_on_signals() -> Iterator[None]:
 @click.option("--seed", type=int, default=0, show_default=True,
               help="pose sequence; the same seed gives the poses of `pimbs simulate --seed`")
 @click.option("--map", "map_kind", type=click.Choice(["atl", "al"]), default="atl",
-              show_default=True, help="atl: tension floors uniform in [10, 300] N per sample "
-                                      "(as simulate); al: each muscle's f_floor")
+              show_default=True, help="atl: tension floors uniform in [10, 300] N (at most 3/4 "
+                                      "of the weakest muscle's f_max) per sample (as simulate); "
+                                      "al: each muscle's f_floor")
 @click.option("--resume", is_flag=True,
               help="continue an interrupted --out file (same --seed/--samples/--robot/--map)")
 @click.option("--fault", "faults", multiple=True, metavar="KIND:MUSCLE@SAMPLE",
@@ -137,6 +138,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
                            simulated=simulated, settle=settle.meta(), move=moves.meta())
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
+    if plant is not None:
+        _warn_if_ringing(plant, model, settle.timeout)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     # one writer per recording for the whole run: a second collect (or --resume) on the same
     # file is refused before it reads or writes anything, instead of dropping samples
@@ -148,6 +151,16 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
         with _stop_on_signals():
             _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
                  zero_m, note, plant)
+
+
+def _warn_if_ringing(plant: Path, model, wait_s: float) -> None:
+    """One line before the arm moves when the plant arm rings longer than a pose may settle
+    (and a plant that does not fit the description is refused here, before connecting)."""
+    from pimbs_hw.mock.mujoco_plant import ringing
+
+    note = ringing(plant, model.robot).note(plant, model.joints, wait_s)
+    if note:
+        click.echo(note, err=True)
 
 
 def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):

@@ -102,7 +102,14 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
     boards = ", ".join(f"{m.name}=board {m.board_id}" for m in description.muscles)
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
     if plant is not None:
+        from pimbs_hw.collection.settle import SettleConfig
+        from pimbs_hw.mock.mujoco_plant import ringing
+
         click.echo(f"the true arm: {plant}, integrated by MuJoCo")
+        note = ringing(plant, description).note(plant, description.joints,
+                                                SettleConfig().timeout)
+        if note:
+            click.echo(note, err=True)
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:

@@ -13,7 +13,8 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 @robot_option()
 @click.option("--samples", "-n", type=click.IntRange(min=1), default=1000, show_default=True)
 @click.option("--map", "map_kind", type=click.Choice(["al", "atl"]), default="atl",
-              show_default=True, help="al: f_min = 0; atl: f_min uniform in [10, 300] N")
+              show_default=True, help="al: f_min = 0; atl: f_min uniform in [10, 300] N "
+                                   "(at most 3/4 of the weakest muscle's f_max)")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True)
 @click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",

@@ -23,6 +23,12 @@ import numpy as np
 from pimbs_arm.model import ArmModel, InfeasiblePoseError, sample_poses
 
 ATL_F_MIN = (10.0, 300.0)  # N, the paper's range of the ATL-Map tension floors
+# Floors stop at this share of the weakest muscle's f_max: a floor above it leaves that muscle
+# less than 0.15 f_max under the plan ceiling for the load (and, on a balanced antagonist
+# pair, the antagonist's floor is load), so most draws would be replaced; an arm with a muscle
+# weaker than 300 / PLAN_CEILING N could hold none. Arms whose muscles all hold 400 N or more
+# keep the paper's range.
+ATL_F_MAX_SHARE = 0.75
 MAPS = ("al", "atl")
 PLAN_CEILING = 0.9  # a planned pose holds with every tension <= this fraction of f_max
 REPLACEMENT_TRIES = 1000  # draws per infeasible pose before the robot is declared unable
@@ -42,6 +48,13 @@ class PosePlan:
 def hold_ceiling(arm: ArmModel) -> np.ndarray:
     """(M,) the highest tension a plan may ask of each muscle."""
     return PLAN_CEILING * arm.f_max
+
+
+def atl_floor_range(arm: ArmModel) -> tuple[float, float]:
+    """The ATL-Map floors' draw, uniform in [low, high] N for every muscle: the paper's
+    [10, 300] N, its top lowered to ``ATL_F_MAX_SHARE`` of the weakest muscle's f_max."""
+    low, high = ATL_F_MIN
+    return low, max(low, min(high, ATL_F_MAX_SHARE * float(arm.f_max.min())))
 
 
 def feasible(arm: ArmModel, theta: np.ndarray, floor: np.ndarray) -> bool:
@@ -64,7 +77,8 @@ def plan_poses(arm: ArmModel, n: int, seed: int, map_kind: str = "atl") -> PoseP
     poses = sample_poses(arm.joint_range, n, np.random.default_rng([seed, 0]))
     f_floor = np.array([m.f_floor for m in arm.robot.muscles])
     if map_kind == "atl":
-        drawn = np.random.default_rng([seed, 1]).uniform(*ATL_F_MIN, (n, arm.n_muscles))
+        low, high = atl_floor_range(arm)
+        drawn = np.random.default_rng([seed, 1]).uniform(low, high, (n, arm.n_muscles))
         floors = np.maximum(drawn, f_floor)
     else:
         drawn = np.zeros((n, arm.n_muscles))

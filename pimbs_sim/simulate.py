@@ -2,10 +2,10 @@
 
 Per sample (Sec. III-A of the paper): θ uniform in the joint range (the seeded sequence of
 :mod:`pimbs_arm.poses`, shared with ``collect``: a pose the muscles cannot hold within
-f_max is replaced by a feasible draw); gravity torque and
-geometric lengths from the model; tensions from the QP ``min fᵀf s.t. −Gᵀf = τ, f ≥ f_min``
-with ``f_min = 0`` (AL-Map) or uniform in [10, 300] N per muscle (ATL-Map); lengths with the
-elastic stretch ``f = exp(KΔn) − 1``.
+f_max is replaced by a feasible draw); gravity torque and geometric lengths from the model;
+tensions from the QP ``min fᵀf s.t. −Gᵀf = τ, f ≥ f_min`` with ``f_min = 0`` (AL-Map) or
+uniform in [10, 300] N per muscle, at most 3/4 of the weakest f_max (ATL-Map); lengths with
+the elastic stretch ``f = exp(KΔn) − 1``.
 
 Like a real collection, the recording also carries times, approach directions (the sign
 of each muscle's length change on the way from the previous pose), motor temperatures that
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
-from pimbs_arm.poses import ATL_F_MIN, hold_ceiling, plan_poses
+from pimbs_arm.poses import ATL_F_MIN, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_recording.format import make_meta
 from pimbs_sim.effects import T_REF, Effect, World
 
@@ -120,7 +120,7 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
             "approach": approach, **out}
     meta = make_meta(arm.joints, arm.muscles, "simulation", robot=arm.robot.name,
                      seed=seed, map=map_kind, generator="pimbs simulate",
-                     f_min=[0.0, 0.0] if map_kind == "al" else list(ATL_F_MIN),
+                     f_min=[0.0, 0.0] if map_kind == "al" else list(atl_floor_range(arm)),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
                      noise=noise, theta_source="simulation",
                      replaced_poses=list(plan.replaced),

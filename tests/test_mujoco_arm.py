@@ -313,3 +313,67 @@ def test_an_mjcf_arm_model_pickles_for_worker_processes():
     theta = np.array([0.1, 0.2, -0.3])
     np.testing.assert_array_equal(copy.muscle_jacobian(theta), arm.muscle_jacobian(theta))
     np.testing.assert_array_equal(copy.gravity_torque(theta), arm.gravity_torque(theta))
+
+
+# One hinge, four tendons, each declaring its largest tension another way: a muscle with its
+# peak force, a muscle whose peak force MuJoCo derives (force="-1": scale / acc0), a geared
+# force-limited motor, and a tendon no actuator declares anything for.
+DECLARED_FORCES = """
+<mujoco model="declared-forces">
+  <worldbody>
+    <site name="a" pos="0.03 0 0.1"/><site name="b" pos="-0.03 0 0.1"/>
+    <site name="c" pos="0.02 0 0.1"/><site name="d" pos="-0.02 0 0.1"/>
+    <body name="link" pos="0 0 0">
+      <joint name="hinge" type="hinge" axis="0 1 0" range="-30 30"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="1"/>
+      <site name="a1" pos="0.03 0 -0.1"/><site name="b1" pos="-0.03 0 -0.1"/>
+      <site name="c1" pos="0.02 0 -0.1"/><site name="d1" pos="-0.02 0 -0.1"/>
+    </body>
+  </worldbody>
+  <tendon>
+    <spatial name="given"><site site="a"/><site site="a1"/></spatial>
+    <spatial name="derived"><site site="b"/><site site="b1"/></spatial>
+    <spatial name="geared"><site site="c"/><site site="c1"/></spatial>
+    <spatial name="bare"><site site="d"/><site site="d1"/></spatial>
+  </tendon>
+  <actuator>
+    <muscle name="m_given" tendon="given" force="300" lengthrange="0.1 0.3"/>
+    <muscle name="m_derived" tendon="derived" scale="200" lengthrange="0.1 0.3"/>
+    <motor name="m_geared" tendon="geared" gear="2" forcelimited="true" forcerange="-50 0"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_actuators_declare_the_muscles_force_limits(tmp_path):
+    """f_max of a bare MJCF is the tension MuJoCo's actuators can put on each tendon: a
+    muscle's peak active force as MuJoCo's own muscle gain computes it (at the optimal length,
+    at rest, fully active), a motor's force range times its gear; else the stated default."""
+    path = tmp_path / "declared.xml"
+    path.write_text(DECLARED_FORCES)
+    f_max = {m.name: m.f_max for m in load_robot(path).muscles}
+    model = mujoco.MjModel.from_xml_path(str(path))
+    for name in ("m_given", "m_derived"):
+        a = model.actuator(name).id
+        lo, hi = model.actuator_gainprm[a, :2]  # the muscle's normalized operating range
+        lr = model.actuator_lengthrange[a]
+        optimal = lr[0] + (1.0 - lo) * (lr[1] - lr[0]) / (hi - lo)  # normalized length 1
+        peak = -mujoco.mju_muscleGain(optimal, 0.0, lr, model.actuator_acc0[a],
+                                      model.actuator_gainprm[a, :9])
+        tendon = model.tendon(int(model.actuator_trnid[a, 0])).name
+        assert f_max[tendon] == pytest.approx(peak, rel=1e-12)
+    assert f_max["given"] == pytest.approx(300.0)
+    assert f_max["derived"] == pytest.approx(200.0 / model.actuator_acc0[1])
+    # the motor driven past its limit: MuJoCo clamps its force, and the tension its
+    # transmission puts on the tendon is (generalized force) / (the tendon's moment arm)
+    data = mujoco.MjData(model)
+    motor = model.actuator("m_geared").id
+    data.ctrl[motor] = -1e6
+    mujoco.mj_forward(model, data)
+    moment = np.zeros((model.nu, model.nv))
+    mujoco.mju_sparse2dense(moment, data.actuator_moment, data.moment_rownnz,
+                            data.moment_rowadr, data.moment_colind)
+    ten_j = ArmModel.load(path).backend.kinematics(np.zeros(1)).jacobian
+    tension = data.actuator_force[motor] * moment[motor, 0] / ten_j[2, 0]
+    assert f_max["geared"] == pytest.approx(abs(tension), rel=1e-12) and abs(tension) == 100.0
+    assert f_max["bare"] == 600.0

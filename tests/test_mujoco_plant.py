@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
-from pimbs_hw.mock.mujoco_plant import MujocoPlant, PlantMismatch
+from pimbs_hw.mock.mujoco_plant import RING_TARGET_S, MujocoPlant, PlantMismatch, ringing
 
 ARMS = Path(__file__).resolve().parents[1] / "fixtures" / "mujoco"
 PLANAR, REAL = ARMS / "planar_2dof.xml", ARMS / "planar_2dof_real.xml"
@@ -133,6 +133,72 @@ def test_mockbus_runs_a_mujoco_plant_and_refuses_one_that_does_not_fit():
                                     "--port", "pty", "--duration", "0.3"])
     assert res.exit_code == 1 and res.output.count("\n") == 1
     assert f"--plant {spatial}: no hinge joint named shoulder" in res.output
+
+
+# One hinge under no gravity, sprung by MuJoCo's own joint spring: a free swing whose decay
+# MuJoCo's integration shows, independent of how PIMBS predicts it.
+SWING = """
+<mujoco model="swing">
+  <compiler angle="radian"/>
+  <option gravity="0 0 0" timestep="0.0005"/>
+  <worldbody>
+    <site name="o1" pos="0.03 0 0.1"/><site name="o2" pos="-0.03 0 0.1"/>
+    <body name="link">
+      <joint name="hinge" type="hinge" axis="0 1 0" range="-0.5 0.5" damping="{damping}"
+        stiffness="40" armature="0.002"/>
+      <inertial pos="0 0 -0.2" mass="0.8" diaginertia="0.01 0.01 0.001"/>
+      <site name="i1" pos="0.03 0 -0.1"/><site name="i2" pos="-0.03 0 -0.1"/>
+    </body>
+  </worldbody>
+  <tendon>
+    <spatial name="front"><site site="o1"/><site site="i1"/></spatial>
+    <spatial name="back"><site site="o2"/><site site="i2"/></spatial>
+  </tendon>
+</mujoco>
+"""
+
+
+def _swing(tmp_path: Path, damping: float) -> Path:
+    path = tmp_path / f"swing_{damping:g}.xml"
+    path.write_text(SWING.format(damping=damping))
+    return path
+
+
+@pytest.mark.parametrize("damping", [0.02, 0.2])
+def test_the_predicted_ring_time_is_the_decay_mujoco_integrates(tmp_path, damping):
+    import mujoco
+
+    xml = _swing(tmp_path, damping)
+    predicted = ringing(xml, ArmModel.load(xml).robot).decay_s
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    data = mujoco.MjData(model)
+    data.qpos[0] = 0.3
+    peaks = []  # (t, |θ|) at each turning point of the free swing
+    for _ in range(int(2.0 / model.opt.timestep)):
+        before = data.qvel[0]
+        mujoco.mj_step(model, data)
+        if before * data.qvel[0] < 0:
+            peaks.append((data.time, abs(data.qpos[0])))
+    (t0, a0), (t1, a1) = peaks[1], peaks[-1]
+    measured = (t1 - t0) / np.log(a0 / a1)
+    assert predicted == pytest.approx(measured, rel=0.03)
+
+
+def test_a_barely_damped_plant_is_named_before_the_arm_moves(tmp_path):
+    calm, ringing_xml = _swing(tmp_path, 0.2), _swing(tmp_path, 0.002)
+    robot = ArmModel.load(calm).robot
+    assert ringing(calm, robot).note(calm, robot.joints, 5.0) == ""
+    ring = ringing(ringing_xml, robot)
+    line = ring.note(ringing_xml, robot.joints, 5.0)
+    assert ring.decay_s > 5.0 and str(ringing_xml) in line and "\n" not in line
+    # the suggested damping, written into the plant, rings no longer than RING_TARGET_S
+    suggested = float(ring.suggested[0])
+    assert f"hinge {suggested:.2g} N·m·s/rad" in line
+    fixed = _swing(tmp_path, suggested)
+    assert ringing(fixed, robot).decay_s == pytest.approx(RING_TARGET_S, rel=1e-6)
+    res = CliRunner().invoke(main, ["mockbus", "--robot", str(calm), "--plant",
+                                    str(ringing_xml), "--port", "pty", "--duration", "0.2"])
+    assert res.exit_code == 0 and line in res.output
 
 
 def test_collect_on_a_mujoco_plant_records_the_plant_not_the_description(tmp_path):

@@ -124,3 +124,27 @@ def test_ceiling_stop_names_the_pose_and_whether_the_plan_needed_it(acme):
     plan.model = weak
     text = stop_advice(stop, plan, 3)
     assert "needed that tension (an infeasible pose)" in text and "pimbs robot" in text
+
+
+def test_atl_floors_of_an_arm_with_a_weak_muscle_stay_within_its_reach(tmp_path):
+    """An arm with a muscle too weak for the paper's 300 N floors draws every floor up to 3/4
+    of that muscle's f_max (an antagonist's floor is load on it), and says so in the
+    recording; an arm whose muscles are strong enough keeps the paper's draws exactly."""
+    import yaml
+
+    robots = Path(__file__).resolve().parents[1] / "calibration" / "robots"
+    spec = yaml.safe_load((robots / "two-link-4-muscle.muscles.yaml").read_text())
+    spec["urdf"] = str(robots / spec["urdf"])
+    spec["muscles"][1]["f_max"] = 200.0  # the shoulder extensor: a 300 N floor is beyond it
+    path = tmp_path / "weak.muscles.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    weak = ArmModel.load(path)
+    plan = plan_poses(weak, 300, seed=4)
+    paper = np.random.default_rng([4, 1]).uniform(10, 300, (300, 4))
+    np.testing.assert_allclose(plan.drawn_floors, 10 + (paper - 10) * 140 / 290, rtol=1e-12)
+    assert plan.replaced == ()  # every draw can be held, none replaced
+    data, meta = simulate(weak, 50, "atl", seed=4, noise=0.0)
+    assert meta["f_min"] == [10.0, 150.0] and data["tension"][:, 1].max() <= 0.9 * 200
+    strong = ArmModel.load("two-link-4-muscle")
+    np.testing.assert_array_equal(plan_poses(strong, 300, seed=4).drawn_floors, paper)
+    assert simulate(strong, 5, "atl", seed=4, noise=0.0)[1]["f_min"] == [10.0, 300.0]

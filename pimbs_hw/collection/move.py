@@ -32,13 +32,18 @@ from pimbs_hw.collection.plan import Target
 
 @dataclass(frozen=True)
 class MoveConfig:
-    """Per-cycle increments (bound the damage of board-to-board skew) and rates (the arm's)."""
+    """Per-cycle increments (bound the damage of board-to-board skew) and rates (the arm's).
 
-    length_step: float = 1e-3     # m per command cycle
-    tension_step: float = 25.0    # N per command cycle
-    length_rate: float = 0.05     # m/s
-    tension_rate: float = 1000.0  # N/s
-    speed: float = 1.0            # time speed-up of a simulated arm: rates scale with it
+    Tension increments and rates are shares of each muscle's f_max (25 N and 1000 N/s for a
+    600 N muscle): the ringing a load step excites in an arm grows with the step, and the
+    room between the plan's tensions and the boards' ceiling is a share of f_max too.
+    """
+
+    length_step: float = 1e-3               # m per command cycle
+    tension_step_of_f_max: float = 1 / 24   # of f_max per command cycle
+    length_rate: float = 0.05               # m/s
+    tension_rate_of_f_max: float = 5 / 3    # of f_max per second
+    speed: float = 1.0                      # time speed-up of a simulated arm: rates scale
 
     def meta(self) -> dict:
         return asdict(self)
@@ -54,15 +59,17 @@ class Ramp:
 
 
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
-          path=None, tension_span: np.ndarray | None = None) -> Ramp:
+          f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
     to go through, limited like a tension command's (the steps and the rate)."""
+    tension_step = cfg.tension_step_of_f_max * f_max
+    tension_rate = cfg.tension_rate_of_f_max * f_max * cfg.speed
     delta = np.abs(end - start)
-    steps = delta / np.where(is_length, cfg.length_step, cfg.tension_step)
-    seconds = delta / (np.where(is_length, cfg.length_rate, cfg.tension_rate) * cfg.speed)
+    steps = delta / np.where(is_length, cfg.length_step, tension_step)
+    seconds = delta / np.where(is_length, cfg.length_rate * cfg.speed, tension_rate)
     if tension_span is not None:
-        steps = np.maximum(steps, tension_span / cfg.tension_step)
-        seconds = np.maximum(seconds, tension_span / (cfg.tension_rate * cfg.speed))
+        steps = np.maximum(steps, tension_span / tension_step)
+        seconds = np.maximum(seconds, tension_span / tension_rate)
     n = max(1, int(np.ceil(np.max(steps))))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
@@ -91,7 +98,8 @@ def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.nda
                      / np.where(moving, s1 - s0, 1.0), x)
         return start + w * (end - start)
 
-    return _ramp(mode, start, end, held, cfg, path, np.where(held, np.abs(f1 - f0), 0.0))
+    return _ramp(mode, start, end, held, cfg, model.f_max, path,
+                 np.where(held, np.abs(f1 - f0), 0.0))
 
 
 def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) -> Ramp:
@@ -124,7 +132,7 @@ def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
         return model.length(theta, f_now + s * (f_end - f_now)) + (1.0 - s) * start_error
 
     return _ramp("length", now.length, target.approach_length,
-                 np.ones(model.n_muscles, bool), cfg, path)
+                 np.ones(model.n_muscles, bool), cfg, model.f_max, path)
 
 
 def take_up_slack(model: ArmModel, now: Reading, target: Target, cfg: MoveConfig,

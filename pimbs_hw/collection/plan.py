@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_arm.model import ArmModel
-from pimbs_arm.poses import ATL_F_MIN, MAPS, hold_ceiling, plan_poses
+from pimbs_arm.poses import MAPS, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_recording.approach import BAND_M
 
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
@@ -137,7 +137,7 @@ class CollectionPlan:
         """Metadata keys that identify the sequence (checked when resuming)."""
         return {"seed": self.seed, "samples": self.n_samples, "map": self.map_kind,
                 "f_min": [float(self.pretension.min()), float(self.pretension.max())]
-                if self.map_kind == "al" else list(ATL_F_MIN),
+                if self.map_kind == "al" else list(atl_floor_range(self.model)),
                 "replaced_poses": list(self.replaced)}
 
 

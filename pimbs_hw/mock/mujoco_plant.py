@@ -24,12 +24,14 @@ forces that depend on the current state.
 
 from __future__ import annotations
 
+import itertools
 import threading
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
+import scipy.linalg
 
 from pimbs_calibration.mjcf import MjcfError, compile_model, joint_names, tendon_names
 from pimbs_hw.mock.plant import PlantState, thermal_step
@@ -38,10 +40,98 @@ from pimbs_recording.approach import FrictionPlay
 _EXP_CAP = 60.0  # cap K*dn: a tension beyond e^60 N is a broken simulation, not a number
 SETTLED_SPEED = 1e-3  # rad/s: joints slower than this for REST_S (motors at their targets)
 REST_S = 0.2  # s of arm time: a swing's turning point is slow only for an instant
+RING_TARGET_S = 0.5  # s: the decay time the suggested joint damping gives the plant arm
 
 
 class PlantMismatch(ValueError):
     """The plant MJCF does not fit the description (message names both and what is missing)."""
+
+
+def _driven(mj: mujoco.MjModel, robot, xml: Path) -> tuple[list[int], np.ndarray]:
+    """The plant's joint ids of the description's driven joints (hinges) and its tendon ids
+    of the description's muscles, by name; ``PlantMismatch`` naming what is missing."""
+    joints, tendons = joint_names(mj), tendon_names(mj)
+    hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
+    bad = [j for j in robot.joints
+           if j not in joints or int(mj.jnt_type[joints.index(j)]) != hinge]
+    if bad:
+        raise PlantMismatch(
+            f"--plant {xml}: no hinge joint named {', '.join(bad)} (the description "
+            f"{robot.muscle_path} drives {', '.join(robot.joints)}); name the plant's "
+            "joints as the description does")
+    muscles = [mu.name for mu in robot.muscles]
+    missing = [t for t in muscles if t not in tendons]
+    if missing:
+        raise PlantMismatch(
+            f"--plant {xml}: no tendon named {', '.join(missing)} (the description "
+            f"{robot.muscle_path} has muscles {', '.join(muscles)}); name one spatial "
+            "tendon of the plant after each muscle")
+    return ([joints.index(j) for j in robot.joints],
+            np.array([tendons.index(t) for t in muscles], dtype=int))
+
+
+@dataclass(frozen=True)
+class Ringing:
+    """How long the plant arm rings once disturbed, and the joint damping that would calm it.
+
+    Held by its wires, the arm is a mass on springs: only the plant's joint and tendon damping
+    take the energy of each load step out (the MJCF's own actuators, muscles included, are
+    off: the boards drive the tendons). Every motion of the driven joints decays at least as
+    fast as exp(-t / ``decay_s``), whatever the wires' stiffness: ``decay_s`` = 2 / (smallest
+    eigenvalue of M⁻¹D), M the joint-space inertia (armature included), D the damping,
+    the worst over the centre and corners of the joint ranges.
+    """
+
+    decay_s: float          # inf: some motion of the joints is not damped at all
+    damping: np.ndarray     # (N,) the driven joints' own damping, N·m·s/rad
+    suggested: np.ndarray   # (N,) joint damping for a decay within RING_TARGET_S
+
+    def note(self, xml: Path, joints: tuple[str, ...], wait_s: float) -> str:
+        """One warning line when the arm rings longer than ``wait_s`` (a pose's settle
+        timeout), else ''."""
+        if self.decay_s <= wait_s:
+            return ""
+        took = "never dies down" if not np.isfinite(self.decay_s) else \
+            f"takes {self.decay_s:.0f} s to die down to 1/e"
+        now = ", ".join(f"{d:g}" for d in self.damping)
+        want = ", ".join(f"{j} {d:.2g}" for j, d in zip(joints, self.suggested, strict=True))
+        return (f"warning: the plant {xml} is barely damped: a motion of its joints {took} "
+                f"(joint damping {now} N·m·s/rad), longer than the {wait_s:g} s a pose may "
+                "take to settle, so held poses will ring and a wire may reach its tension "
+                "ceiling. A real arm's motors, gears and wires damp it (MuJoCo muscle "
+                f"actuators would too, but the boards drive the tendons): give the plant's "
+                f"joints damping of about {want} N·m·s/rad, or its tendons damping")
+
+
+def ringing(xml: Path, robot) -> Ringing:
+    """``Ringing`` of the plant MJCF ``xml`` driven as ``robot`` describes (its joints and
+    muscles by name, others locked as the plant holds them)."""
+    try:
+        mj = compile_model(Path(xml))
+    except MjcfError as exc:
+        raise PlantMismatch(f"--plant {exc}") from exc
+    jid, _ = _driven(mj, robot, Path(xml))
+    qadr, dof = mj.jnt_qposadr[jid], mj.jnt_dofadr[jid]
+    data = mujoco.MjData(mj)
+    full_m, jac = np.zeros((mj.nv, mj.nv)), np.zeros((mj.ntendon, mj.nv))
+    lo, hi = np.asarray(robot.joint_range, float).T
+    poses = [(lo + hi) / 2] + [np.array(c) for c in itertools.product(*zip(lo, hi, strict=True))]
+    decay, diag = 0.0, np.zeros(len(jid))
+    for theta in poses:
+        data.qpos[:] = mj.qpos0
+        data.qpos[qadr] = theta
+        mujoco.mj_forward(mj, data)
+        mujoco.mj_fullM(mj, data, full_m)
+        mujoco.mju_sparse2dense(jac, data.ten_J, mj.ten_J_rownnz, mj.ten_J_rowadr,
+                                mj.ten_J_colind)
+        inertia = full_m[np.ix_(dof, dof)]
+        damping = (np.diag(mj.dof_damping[dof])
+                   + (jac.T @ np.diag(mj.tendon_damping) @ jac)[np.ix_(dof, dof)])
+        rate = float(scipy.linalg.eigh(damping, inertia, eigvals_only=True).min()) / 2
+        decay = max(decay, np.inf if rate <= 1e-12 else 1.0 / rate)
+        diag = np.maximum(diag, np.diag(inertia))
+    return Ringing(decay_s=decay, damping=np.array(mj.dof_damping[dof]),
+                   suggested=np.maximum(mj.dof_damping[dof], 2.0 * diag / RING_TARGET_S))
 
 
 class MujocoPlant:
@@ -88,26 +178,9 @@ class MujocoPlant:
 
     def _map(self, robot) -> None:
         """Plant joints and tendons by the description's names; a clear line if missing."""
-        joints, tendons = joint_names(self.mj), tendon_names(self.mj)
-        hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
-        bad = [j for j in robot.joints
-               if j not in joints or int(self.mj.jnt_type[joints.index(j)]) != hinge]
-        if bad:
-            raise PlantMismatch(
-                f"--plant {self.xml}: no hinge joint named {', '.join(bad)} (the description "
-                f"{robot.muscle_path} drives {', '.join(robot.joints)}); name the plant's "
-                "joints as the description does")
-        muscles = [mu.name for mu in robot.muscles]
-        missing = [t for t in muscles if t not in tendons]
-        if missing:
-            raise PlantMismatch(
-                f"--plant {self.xml}: no tendon named {', '.join(missing)} (the description "
-                f"{robot.muscle_path} has muscles {', '.join(muscles)}); name one spatial "
-                "tendon of the plant after each muscle")
-        jid = [joints.index(j) for j in robot.joints]
-        self._qadr = self.mj.jnt_qposadr[jid]
-        self._dof = self.mj.jnt_dofadr[jid]
-        self._tendon = np.array([tendons.index(t) for t in muscles], dtype=int)
+        jid, self._tendon = _driven(self.mj, robot, self.xml)
+        self._qadr, self._dof = self.mj.jnt_qposadr[jid], self.mj.jnt_dofadr[jid]
+        joints = joint_names(self.mj)
         self._q0 = self.mj.qpos0.copy()
         for name, value in robot.locked:
             if name in joints:
