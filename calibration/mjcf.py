@@ -164,8 +164,9 @@ def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
 
     A force-limited actuator declares its largest |forcerange|; a MuJoCo muscle that is not
     force-limited declares its peak active force F0 (``force``, or MuJoCo's own rule when
-    that is negative: ``scale / acc0``). The tendon carries |gear| times the actuator's
-    force. Several actuators on one tendon: the largest.
+    that is negative: ``scale / acc0``); a control-limited ``<motor>`` (a fixed gain, no
+    bias) its largest |ctrlrange| times its gain. The tendon carries |gear| times the
+    actuator's force. Several actuators on one tendon: the largest.
     """
     limits: dict[int, float] = {}
     for a in range(model.nu):
@@ -175,6 +176,11 @@ def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
             bound = float(np.abs(model.actuator_forcerange[a]).max())
         elif int(model.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_MUSCLE):
             bound = _muscle_peak_force(model, a)
+        elif (model.actuator_ctrllimited[a]
+              and int(model.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+              and int(model.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_NONE)):
+            bound = float(np.abs(model.actuator_ctrlrange[a]).max()
+                          * abs(model.actuator_gainprm[a, 0]))
         else:
             continue
         bound *= abs(float(model.actuator_gear[a, 0]))

@@ -315,19 +315,22 @@ def test_an_mjcf_arm_model_pickles_for_worker_processes():
     np.testing.assert_array_equal(copy.gravity_torque(theta), arm.gravity_torque(theta))
 
 
-# One hinge, four tendons, each declaring its largest tension another way: a muscle with its
+# One hinge, five tendons, each declaring its largest tension another way: a muscle with its
 # peak force, a muscle whose peak force MuJoCo derives (force="-1": scale / acc0), a geared
-# force-limited motor, and a tendon no actuator declares anything for.
+# force-limited motor, a geared control-limited motor, and a tendon no actuator declares
+# anything for (a position servo's force depends on its gains and error: nothing declared).
 DECLARED_FORCES = """
 <mujoco model="declared-forces">
   <worldbody>
     <site name="a" pos="0.03 0 0.1"/><site name="b" pos="-0.03 0 0.1"/>
     <site name="c" pos="0.02 0 0.1"/><site name="d" pos="-0.02 0 0.1"/>
+    <site name="e" pos="0.04 0 0.1"/>
     <body name="link" pos="0 0 0">
       <joint name="hinge" type="hinge" axis="0 1 0" range="-30 30"/>
       <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.02" mass="1"/>
       <site name="a1" pos="0.03 0 -0.1"/><site name="b1" pos="-0.03 0 -0.1"/>
       <site name="c1" pos="0.02 0 -0.1"/><site name="d1" pos="-0.02 0 -0.1"/>
+      <site name="e1" pos="0.04 0 -0.1"/>
     </body>
   </worldbody>
   <tendon>
@@ -335,11 +338,14 @@ DECLARED_FORCES = """
     <spatial name="derived"><site site="b"/><site site="b1"/></spatial>
     <spatial name="geared"><site site="c"/><site site="c1"/></spatial>
     <spatial name="bare"><site site="d"/><site site="d1"/></spatial>
+    <spatial name="ctrl"><site site="e"/><site site="e1"/></spatial>
   </tendon>
   <actuator>
     <muscle name="m_given" tendon="given" force="300" lengthrange="0.1 0.3"/>
     <muscle name="m_derived" tendon="derived" scale="200" lengthrange="0.1 0.3"/>
     <motor name="m_geared" tendon="geared" gear="2" forcelimited="true" forcerange="-50 0"/>
+    <motor name="m_ctrl" tendon="ctrl" gear="3" ctrllimited="true" ctrlrange="-40 0"/>
+    <position name="m_servo" tendon="bare" kp="500"/>
   </actuator>
 </mujoco>
 """
@@ -364,16 +370,20 @@ def test_actuators_declare_the_muscles_force_limits(tmp_path):
         assert f_max[tendon] == pytest.approx(peak, rel=1e-12)
     assert f_max["given"] == pytest.approx(300.0)
     assert f_max["derived"] == pytest.approx(200.0 / model.actuator_acc0[1])
-    # the motor driven past its limit: MuJoCo clamps its force, and the tension its
-    # transmission puts on the tendon is (generalized force) / (the tendon's moment arm)
+    # each motor driven past its limit (MuJoCo clamps the control or the force): the tension
+    # its transmission puts on the tendon is (generalized force) / (the tendon's moment arm)
     data = mujoco.MjData(model)
-    motor = model.actuator("m_geared").id
-    data.ctrl[motor] = -1e6
-    mujoco.mj_forward(model, data)
-    moment = np.zeros((model.nu, model.nv))
-    mujoco.mju_sparse2dense(moment, data.actuator_moment, data.moment_rownnz,
-                            data.moment_rowadr, data.moment_colind)
     ten_j = ArmModel.load(path).backend.kinematics(np.zeros(1)).jacobian
-    tension = data.actuator_force[motor] * moment[motor, 0] / ten_j[2, 0]
-    assert f_max["geared"] == pytest.approx(abs(tension), rel=1e-12) and abs(tension) == 100.0
+    for name, tendon, expected in (("m_geared", "geared", 100.0), ("m_ctrl", "ctrl", 120.0)):
+        motor = model.actuator(name).id
+        data.ctrl[:] = 0.0
+        data.ctrl[motor] = -1e6
+        mujoco.mj_forward(model, data)
+        moment = np.zeros((model.nu, model.nv))
+        mujoco.mju_sparse2dense(moment, data.actuator_moment, data.moment_rownnz,
+                                data.moment_rowadr, data.moment_colind)
+        row = list(f_max).index(tendon)
+        tension = data.actuator_force[motor] * moment[motor, 0] / ten_j[row, 0]
+        assert f_max[tendon] == pytest.approx(abs(tension), rel=1e-12)
+        assert abs(tension) == pytest.approx(expected)
     assert f_max["bare"] == 600.0

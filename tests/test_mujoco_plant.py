@@ -95,6 +95,11 @@ def test_the_boards_report_what_the_mujoco_arm_does():
         assert isinstance(mock.plant, MujocoPlant)
         driver.command("length", lengths)
         t = 0.0
+        while mock.settled() and t < 2.0:  # until the boards hand the command to the motors
+            driver.dwell(0.02)
+            t += 0.02
+        assert not mock.settled(), "the boards never passed the length command on"
+        t = 0.0
         while not mock.settled() and t < 10.0:
             driver.dwell(0.1)
             t += 0.1
