@@ -505,7 +505,8 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
     other hinge and slide joint is locked at ``lock`` or its ``qpos0``. Muscles: ``muscles``
     (tendons by name, in column order) or every spatial tendon in file order, boards numbered
     1, 2, ... in that order; f_max is the largest tension an actuator on the tendon declares
-    (a force range, or a MuJoCo muscle's peak force; times its gear) where there is one.
+    (a force range, a MuJoCo muscle's peak force or a motor's control range; times its gear)
+    where there is one.
     """
     from pimbs_calibration.mjcf import MjcfError, read_mjcf
 

@@ -39,11 +39,11 @@ class MoveConfig:
     room between the plan's tensions and the boards' ceiling is a share of f_max too.
     """
 
-    length_step: float = 1e-3               # m per command cycle
-    tension_step_of_f_max: float = 1 / 24   # of f_max per command cycle
-    length_rate: float = 0.05               # m/s
-    tension_rate_of_f_max: float = 5 / 3    # of f_max per second
-    speed: float = 1.0                      # time speed-up of a simulated arm: rates scale
+    length_step: float = 1e-3             # m per command cycle
+    tension_step_of_f_max: float = 1 / 24  # of f_max per command cycle
+    length_rate: float = 0.05             # m/s
+    tension_rate_of_f_max: float = 5 / 3  # of f_max per second
+    speed: float = 1.0                    # time speed-up of a simulated arm: rates scale with it
 
     def meta(self) -> dict:
         return asdict(self)

@@ -47,6 +47,14 @@ class PlantMismatch(ValueError):
     """The plant MJCF does not fit the description (message names both and what is missing)."""
 
 
+def _compile(xml: Path) -> mujoco.MjModel:
+    """The plant MJCF, compiled; a file MuJoCo cannot load is one ``PlantMismatch`` line."""
+    try:
+        return compile_model(xml)
+    except MjcfError as exc:
+        raise PlantMismatch(f"--plant {exc}") from exc
+
+
 def _driven(mj: mujoco.MjModel, robot, xml: Path) -> tuple[list[int], np.ndarray]:
     """The plant's joint ids of the description's driven joints (hinges) and its tendon ids
     of the description's muscles, by name; ``PlantMismatch`` naming what is missing."""
@@ -84,7 +92,7 @@ class Ringing:
 
     decay_s: float          # inf: some motion of the joints is not damped at all
     damping: np.ndarray     # (N,) the driven joints' own damping, N·m·s/rad
-    suggested: np.ndarray   # (N,) joint damping for a decay within RING_TARGET_S
+    suggested: np.ndarray   # (N,) joint damping: no pose rings past RING_TARGET_S
 
     def note(self, xml: Path, joints: tuple[str, ...], wait_s: float) -> str:
         """One warning line when the arm rings longer than ``wait_s`` (a pose's settle
@@ -106,17 +114,14 @@ class Ringing:
 def ringing(xml: Path, robot) -> Ringing:
     """``Ringing`` of the plant MJCF ``xml`` driven as ``robot`` describes (its joints and
     muscles by name, others locked as the plant holds them)."""
-    try:
-        mj = compile_model(Path(xml))
-    except MjcfError as exc:
-        raise PlantMismatch(f"--plant {exc}") from exc
+    mj = _compile(Path(xml))
     jid, _ = _driven(mj, robot, Path(xml))
     qadr, dof = mj.jnt_qposadr[jid], mj.jnt_dofadr[jid]
     data = mujoco.MjData(mj)
     full_m, jac = np.zeros((mj.nv, mj.nv)), np.zeros((mj.ntendon, mj.nv))
     lo, hi = np.asarray(robot.joint_range, float).T
     poses = [(lo + hi) / 2] + [np.array(c) for c in itertools.product(*zip(lo, hi, strict=True))]
-    decay, diag = 0.0, np.zeros(len(jid))
+    decay, inertias = 0.0, []
     for theta in poses:
         data.qpos[:] = mj.qpos0
         data.qpos[qadr] = theta
@@ -124,14 +129,23 @@ def ringing(xml: Path, robot) -> Ringing:
         mujoco.mj_fullM(mj, data, full_m)
         mujoco.mju_sparse2dense(jac, data.ten_J, mj.ten_J_rownnz, mj.ten_J_rowadr,
                                 mj.ten_J_colind)
-        inertia = full_m[np.ix_(dof, dof)]
+        inertias.append(full_m[np.ix_(dof, dof)].copy())
         damping = (np.diag(mj.dof_damping[dof])
                    + (jac.T @ np.diag(mj.tendon_damping) @ jac)[np.ix_(dof, dof)])
-        rate = float(scipy.linalg.eigh(damping, inertia, eigvals_only=True).min()) / 2
-        decay = max(decay, np.inf if rate <= 1e-12 else 1.0 / rate)
-        diag = np.maximum(diag, np.diag(inertia))
+        decay = max(decay, _decay_s(damping, inertias[-1]))
+    # joint damping in proportion to each joint's largest inertia, scaled so that no pose
+    # rings longer than RING_TARGET_S (decay scales as 1/damping; the tendons' only adds)
+    shape = np.max([np.diag(m) for m in inertias], axis=0)
+    scale = max(_decay_s(np.diag(shape), m) for m in inertias) / RING_TARGET_S
     return Ringing(decay_s=decay, damping=np.array(mj.dof_damping[dof]),
-                   suggested=np.maximum(mj.dof_damping[dof], 2.0 * diag / RING_TARGET_S))
+                   suggested=np.maximum(mj.dof_damping[dof], scale * shape))
+
+
+def _decay_s(damping: np.ndarray, inertia: np.ndarray) -> float:
+    """The slowest 1/e decay time of a motion under ``damping`` and ``inertia``: 2 / the
+    smallest eigenvalue of M⁻¹D (inf when some motion is undamped)."""
+    rate = float(scipy.linalg.eigh(damping, inertia, eigvals_only=True).min()) / 2
+    return np.inf if rate <= 1e-12 else 1.0 / rate
 
 
 class MujocoPlant:
@@ -142,10 +156,7 @@ class MujocoPlant:
                  tau_thermal_s: float = 30.0, settle_s: float = 5.0) -> None:
         self.model = model  # the description's ArmModel: muscles, joints, elastic law K
         self.xml = Path(xml)
-        try:
-            self.mj = compile_model(self.xml)
-        except MjcfError as exc:
-            raise PlantMismatch(f"--plant {exc}") from exc
+        self.mj = _compile(self.xml)
         self._map(model.robot)
         # the boards drive the tendons; actuators the MJCF may define are not part of the arm
         self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
