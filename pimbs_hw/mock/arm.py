@@ -235,7 +235,8 @@ class MockArm:
                 frame = self.transport.recv(max(0.0, next_tick - time.monotonic()))
                 while frame is not None:
                     self._on_frame(frame)
-                    frame = self.transport.recv(0.0)
+                    # a steady stream (CANopen SYNC at 1 kHz) must not hold the ticks off
+                    frame = self.transport.recv(0.0) if time.monotonic() < next_tick else None
             except HardwareError as exc:  # a broken link is the host's problem to report
                 log.debug("mock arm link: %s", exc)
                 self._stop.wait(self.tick_s)
