@@ -281,6 +281,27 @@ def test_leaving_applies_the_relax_with_one_last_sync_then_sync_stops():
     assert [b.syncs for b in mock.boards] == syncs  # no SYNC after the host left
 
 
+def test_a_transmission_type_the_drive_keeps_is_refused_by_name(tmp_path):
+    """A drive whose EDS makes TPDO2's transmission type read-only (fixed at 1: every SYNC)
+    cannot report every 20th SYNC as the host sets it: refused at connect, in one line."""
+    eds = (HERE / "foc-mc-csp.eds").read_text()
+    fixed = re.sub(r"(\[1801sub2\][^\[]*?AccessType=)rw", r"\1ro", eds, count=1)
+    assert fixed != eds
+    (tmp_path / "foc-mc-csp.eds").write_text(fixed)
+    (tmp_path / "foc-mc-csp.cia402.yaml").write_text(
+        (HERE / "foc-mc-csp.cia402.yaml").read_text())
+    robot = tmp_path / "two-link-cia402.muscles.yaml"
+    robot.write_text(ROBOT.read_text().replace("../../calibration",
+                                               str(HERE.parent.parent / "calibration")))
+    with pytest.raises(DriveFileError) as err:
+        with open_arm("virtual", robot, speed=10.0, limits=SIMULATED_LIMITS):
+            pass
+    assert str(err.value) == (
+        "CANopen node 1 (foc-mc-csp.eds): TPDO2 keeps transmission type 1 (every SYNC, "
+        "0x1801:02) where the host set 20 (every 20th SYNC): its EDS makes it read-only; "
+        "its PDOs would not come and go when the host expects them")
+
+
 # --------------------------------------------------------------------- canopen's BaseNode402
 @pytest.mark.parametrize("link, period_s", [
     ("virtual", 0.001),
