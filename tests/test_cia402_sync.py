@@ -196,8 +196,9 @@ def test_interpolation_period_is_the_standards_value_and_index():
 
 
 # --------------------------------------------------------------------- the host on SYNC
-def test_host_runs_cyclic_synchronous_drives_on_its_sync():
-    with open_arm("virtual", ROBOT, speed=10.0, limits=SIMULATED_LIMITS) as (driver, mock):
+@pytest.mark.parametrize("port", ["virtual", "slcan-pty"])
+def test_host_runs_cyclic_synchronous_drives_on_its_sync(port):
+    with open_arm(port, ROBOT, speed=10.0, limits=SIMULATED_LIMITS) as (driver, mock):
         proto = driver.protocols[0]
         assert proto.sync is not None and proto.sync.period_us == 1000
         driver.command("tension", 40.0)
@@ -281,18 +282,62 @@ def test_leaving_applies_the_relax_with_one_last_sync_then_sync_stops():
     assert [b.syncs for b in mock.boards] == syncs  # no SYNC after the host left
 
 
+INTERPOLATION = """
+[60C2]
+ParameterName=Interpolation time period
+ObjectType=0x09
+SubNumber=3
+
+[60C2sub0]
+ParameterName=Highest sub-index supported
+ObjectType=0x07
+DataType=0x0005
+AccessType=const
+DefaultValue=2
+PDOMapping=0
+
+[60C2sub1]
+ParameterName=Interpolation time period value
+ObjectType=0x07
+DataType=0x0005
+AccessType=rw
+DefaultValue=0
+PDOMapping=0
+
+[60C2sub2]
+ParameterName=Interpolation time index
+ObjectType=0x07
+DataType=0x0002
+AccessType=rw
+DefaultValue=0
+PDOMapping=0
+"""
+
+
+def _robot_with_eds(tmp_path: Path, eds: str) -> Path:
+    (tmp_path / "foc-mc-csp.eds").write_text(eds)
+    (tmp_path / "foc-mc-csp.cia402.yaml").write_text(
+        (HERE / "foc-mc-csp.cia402.yaml").read_text())
+    robot = tmp_path / "two-link-cia402.muscles.yaml"
+    robot.write_text(ROBOT.read_text().replace("../../calibration",
+                                               str(HERE.parent.parent / "calibration")))
+    return robot
+
+
+def test_interpolation_time_period_is_written_where_the_eds_has_it(tmp_path):
+    robot = _robot_with_eds(tmp_path, (HERE / "foc-mc-csp.eds").read_text() + INTERPOLATION)
+    with open_arm("virtual", robot, speed=10.0, limits=SIMULATED_LIMITS) as (_, mock):
+        for board in mock.boards:  # 1 x 10^-3 s: the SYNC period
+            assert (board.node.sdo[0x60C2][1].raw, board.node.sdo[0x60C2][2].raw) == (1, -3)
+
+
 def test_a_transmission_type_the_drive_keeps_is_refused_by_name(tmp_path):
     """A drive whose EDS makes TPDO2's transmission type read-only (fixed at 1: every SYNC)
     cannot report every 20th SYNC as the host sets it: refused at connect, in one line."""
     eds = (HERE / "foc-mc-csp.eds").read_text()
     fixed = re.sub(r"(\[1801sub2\][^\[]*?AccessType=)rw", r"\1ro", eds, count=1)
     assert fixed != eds
-    (tmp_path / "foc-mc-csp.eds").write_text(fixed)
-    (tmp_path / "foc-mc-csp.cia402.yaml").write_text(
-        (HERE / "foc-mc-csp.cia402.yaml").read_text())
-    robot = tmp_path / "two-link-cia402.muscles.yaml"
-    robot.write_text(ROBOT.read_text().replace("../../calibration",
-                                               str(HERE.parent.parent / "calibration")))
+    robot = _robot_with_eds(tmp_path, fixed)
     with pytest.raises(DriveFileError) as err:
         with open_arm("virtual", robot, speed=10.0, limits=SIMULATED_LIMITS):
             pass
