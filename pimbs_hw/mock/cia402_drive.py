@@ -170,7 +170,6 @@ class Cia402Board:
         self.cycle_us = 0  # 0x1006 communication cycle period, 0: SYNC not supervised
         self.sync_loss_cycles = sync_loss_cycles
         self._since_sync = 0.0  # drive time without a SYNC while supervised
-        self.longest_sync_gap_s = 0.0  # the longest such time so far (diagnostics, tests)
         self._clock = now  # the simulation time the drive clock last advanced to
         self._sync_tx: list[tuple[object, _Sent]] = []  # TPDOs sent on SYNC (types 0..240)
         self._event_tx: list[tuple[object, _Sent]] = []  # event-driven TPDOs (254, 255)
@@ -213,6 +212,8 @@ class Cia402Board:
             self.targets[(index, subindex)] = value
 
     def _on_rpdo(self, pdo_map) -> None:
+        if self.node.nmt.state != "OPERATIONAL":
+            return  # CiA 301: PDOs only in OPERATIONAL
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
             self._pending[pdo_map.cob_id] = pdo_map  # synchronous: taken at the next SYNC
         else:
@@ -289,7 +290,6 @@ class Cia402Board:
             self._since_sync = 0.0
             return
         self._since_sync += step
-        self.longest_sync_gap_s = max(self.longest_sync_gap_s, self._since_sync)
         if self._since_sync > self.sync_loss_cycles * self.cycle_us / 1e6:
             self._fault("sync-loss")
 
