@@ -574,6 +574,8 @@ class ArmDriver:
             return
         self._relax_quietly()
         self.closed = True
+        for proto in self.protocols:
+            proto.close()
         self.transport.close()
 
     def __enter__(self) -> ArmDriver:
