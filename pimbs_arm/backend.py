@@ -106,5 +106,6 @@ class ArmBackend(Protocol):
         ...
 
     def link_frames(self, theta: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """World (rotation (3, 3), position (3,)) of every link / body (for plots)."""
+        """World (rotation (3, 3), position (3,)) of every link / body frame (to check the
+        kinematics against another tool's)."""
         ...
