@@ -57,9 +57,10 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5,
         row = (f"  {m.name:<{name}} {m.board_id:>5} {m.f_floor:>8.4g} {m.f_max:>7.4g} "
                f"{m.K:>7.4g}  ")
         # a long path goes on below itself, broken between its steps only (and starts on a
-        # line of its own where the columns before it leave too little room)
+        # line of its own where the columns before it leave no room for its longest step)
+        longest = max(len(step) for step in route.split(" > ")) + 2
         steps = "\xa0> ".join(step.replace(" ", "\xa0") for step in route.split(" > "))
-        indent = row if width - len(row) >= 30 else "      "
+        indent = row if width - len(row) >= longest else "      "
         wrapped = textwrap.wrap(steps, width, initial_indent=indent,
                                 subsequent_indent=" " * len(indent), break_long_words=False,
                                 break_on_hyphens=False)
