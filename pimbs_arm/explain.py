@@ -7,15 +7,33 @@ cannot be driven both ways), before any collection discovers a routing mistake t
 
 from __future__ import annotations
 
+import os
+import shutil
+import sys
+import textwrap
+
 import numpy as np
 
 from pimbs_arm.model import ArmModel
 from pimbs_arm.routing import MIN_MOMENT_ARM, RoutingReport
 from pimbs_calibration.urdf_model import UNLIMITED, link_masses, parse_joints
 
+PIPED_WIDTH = 100  # columns when the output is not a terminal (a file, a pipe, a test)
 
-def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:
-    """Lines of text explaining the description and the routing check."""
+
+def terminal_width() -> int:
+    """Columns to fit the text in: the terminal's (or ``COLUMNS``), else ``PIPED_WIDTH``."""
+    if "COLUMNS" in os.environ or sys.stdout.isatty():
+        return max(40, shutil.get_terminal_size((PIPED_WIDTH, 24)).columns)
+    return PIPED_WIDTH
+
+
+def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5,
+             width: int | None = None) -> list[str]:
+    """Lines of text explaining the description and the routing check, none wider than
+    ``width`` columns (default: the terminal's) where words allow: a model with 40 joints
+    and 200 muscles is read in a terminal too."""
+    width = terminal_width() if width is None else width
     robot = arm.robot
     mjcf = arm.backend.kind == "mjcf"
     source, kinds, locked_lines, routes = _mjcf_parts(arm) if mjcf else _urdf_parts(arm)
@@ -32,23 +50,71 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[s
         lines += ["", f"locked joints ({len(locked_lines)}; not driven by muscles, held rigid):",
                   *locked_lines]
     via = "MuJoCo tendon path" if mjcf else "via points"
+    name = max(14, *(len(m) for m in arm.muscles))
     lines += ["", f"muscles ({arm.n_muscles}):",
-              f"  {'name':<14} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  {via}"]
+              f"  {'name':<{name}} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  {via}"]
     for m, route in zip(robot.muscles, routes, strict=True):
-        lines.append(f"  {m.name:<14} {m.board_id:>5} {m.f_floor:>8.4g} {m.f_max:>7.4g} "
-                     f"{m.K:>7.4g}  {route}")
-    lines += ["", f"moment arms r = -dl/dtheta in mm over {len(report.poses)} poses "
-              "(centre, corners, random); r > 0 turns the joint towards positive angles:"]
-    width = max(14, *(len(j) for j in arm.joints))
-    lines.append("  " + f"{'':<14}" + "".join(f"{j:>{width + 2}}" for j in arm.joints))
+        row = (f"  {m.name:<{name}} {m.board_id:>5} {m.f_floor:>8.4g} {m.f_max:>7.4g} "
+               f"{m.K:>7.4g}  ")
+        # a long path goes on below itself, broken between its steps only (and starts on a
+        # line of its own where the columns before it leave no room for its longest step)
+        longest = max(len(step) for step in route.split(" > ")) + 2
+        steps = "\xa0> ".join(step.replace(" ", "\xa0") for step in route.split(" > "))
+        indent = row if width - len(row) >= longest else "      "
+        wrapped = textwrap.wrap(steps, width, initial_indent=indent,
+                                subsequent_indent=" " * len(indent), break_long_words=False,
+                                break_on_hyphens=False)
+        lines += ([] if indent == row else [row.rstrip()]) + [
+            part.replace("\xa0", " ") for part in wrapped]
+    lines += ["", f"moment arms r = -dl/dtheta in mm over {len(report.poses)} poses (centre, "
+              "corners, random); r > 0 turns the joint towards positive angles:",
+              *moment_arm_table(arm, report, width)]
+    lines += ["", *both_ways_lines(arm, report, max_poses)]
+    return [part for line in lines for part in _fit(line, width)]
+
+
+def moment_arm_table(arm: ArmModel, report: RoutingReport, width: int) -> list[str]:
+    """Each muscle's moment-arm range (mm) about each joint it crosses, a row per muscle and
+    a column per joint. Where the columns do not fit in ``width`` they are cut into blocks of
+    joints, one under the other, and a block lists only the muscles that cross one of its
+    joints (a finger's muscles in the finger's block, not 40 rows of '-')."""
     r = report.moment_arm * 1e3
     crosses = report.crosses()
-    for i, m in enumerate(arm.muscles):
-        cells = [f"{r[:, i, j].min():+.1f}..{r[:, i, j].max():+.1f}" if crosses[i, j] else "-"
-                 for j in range(arm.n_joints)]
-        lines.append("  " + f"{m:<14}" + "".join(f"{c:>{width + 2}}" for c in cells))
-    lines += ["", *both_ways_lines(arm, report, max_poses)]
+    cells = [[f"{r[:, i, j].min():+.1f}..{r[:, i, j].max():+.1f}" if crosses[i, j] else "-"
+              for j in range(arm.n_joints)] for i in range(arm.n_muscles)]
+    name = max(14, *(len(m) for m in arm.muscles))
+    column = [2 + max(12, len(joint), *(len(row[j]) for row in cells))
+              for j, joint in enumerate(arm.joints)]
+    blocks: list[list[int]] = [[]]
+    for j in range(arm.n_joints):
+        used = 2 + name + sum(column[k] for k in blocks[-1])
+        if blocks[-1] and used + column[j] > width:
+            blocks.append([])
+        blocks[-1].append(j)
+    lines = []
+    for b, joints in enumerate(blocks):
+        if len(blocks) > 1:
+            which = (f"joint {joints[0] + 1}" if len(joints) == 1
+                     else f"joints {joints[0] + 1}-{joints[-1] + 1}")
+            lines += [""] * (b > 0) + [f"  {which} of {arm.n_joints}:"]
+        lines.append("  " + " " * name + "".join(f"{arm.joints[j]:>{column[j]}}"
+                                                  for j in joints))
+        for i, muscle in enumerate(arm.muscles):
+            if len(blocks) == 1 or crosses[i, joints].any():
+                lines.append("  " + f"{muscle:<{name}}"
+                             + "".join(f"{cells[i][j]:>{column[j]}}" for j in joints))
     return lines
+
+
+def _fit(line: str, width: int) -> list[str]:
+    """``line`` broken at spaces into lines of at most ``width`` columns, the rest indented
+    under its start (a word longer than that, a file's path, stays whole)."""
+    if len(line) <= width:
+        return [line]
+    indent = " " * (len(line) - len(line.lstrip()))
+    return textwrap.wrap(line.lstrip(), width, initial_indent=indent,
+                         subsequent_indent=indent + "    ", break_long_words=False,
+                         break_on_hyphens=False) or [line]
 
 
 def _urdf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], list[str]]:

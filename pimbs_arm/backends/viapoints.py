@@ -13,8 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from pimbs_arm.backend import Kinematics
+from pimbs_arm.backend import Kinematics, Skeleton, WirePath
 from pimbs_calibration.description import RobotDescription, reduced_model
+from pimbs_calibration.urdf_model import link_centres, parse_joints
 
 
 @dataclass
@@ -164,14 +165,32 @@ class ViaPointBackend:
         trans = np.array([data.oMi[j].translation for j in self._joint_ids])[self._via_joint]
         return np.einsum("vij,vj->vi", rot, self._via_local) + trans
 
-    def via_points(self, theta) -> list[np.ndarray]:
-        """World positions (k_i, 3) of each muscle's via points at one pose (m)."""
+    def wire_paths(self, theta) -> list[WirePath]:
+        """Each muscle's wire at a pose: one straight polyline through its via points (m)."""
         theta = np.asarray(theta, dtype=np.float64)
         with self._lock:
             pin.forwardKinematics(self._model, self._data, self._q(theta))
             p = self._world_points()
         counts = [len(m.path) for m in self.robot.muscles]
-        return np.split(p, np.cumsum(counts)[:-1])
+        return [WirePath([points], points) for points in np.split(p, np.cumsum(counts)[:-1])]
+
+    def skeleton(self, theta) -> Skeleton:
+        """The URDF's link tree at a pose: a bone from each parent link's frame to its child's
+        (locked joints included), a link without children to twice its centre of mass; each
+        driven joint at its child link's frame (where a URDF joint sits). Every link is framed
+        in the view."""
+        text = self.robot.urdf_path.read_text()
+        urdf = parse_joints(self.robot.urdf_path, text)
+        centres = link_centres(text)
+        frames = self.link_frames(theta)
+        parents = {j.parent for j in urdf.values()}
+        bones = [(frames[j.parent][1], frames[j.child][1]) for j in urdf.values()
+                 if j.parent in frames and j.child in frames]
+        bones += [(p, p + 2 * rot @ centres[name]) for name, (rot, p) in frames.items()
+                  if name not in parents and name in centres]
+        joints = {name: frames[urdf[name].child][1] for name in self.joints}
+        focus = np.array([*(p for _, p in frames.values()), *(e for b in bones for e in b)])
+        return Skeleton(bones, joints, focus)
 
     def link_frames(self, theta) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """World (rotation (3, 3), position (3,)) of every link frame of the URDF at a pose."""
