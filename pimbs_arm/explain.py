@@ -29,8 +29,10 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[s
         lines.append(f"  {name:<22} {kinds[name]:<10} sampled in [{rng[0]:.3g}, "
                      f"{rng[1]:.3g}] rad, {what} limits {limits}")
     if locked_lines:
-        lines += ["", f"locked joints ({len(locked_lines)}; not driven by muscles, held rigid):",
-                  *locked_lines]
+        what = ("locked and following joints ({}; not driven by muscles: held rigid, or moved "
+                "by the joint they follow):" if any(" follows " in x for x in locked_lines)
+                else "locked joints ({}; not driven by muscles, held rigid):")
+        lines += ["", what.format(len(locked_lines)), *locked_lines]
     via = "MuJoCo tendon path" if mjcf else "via points"
     lines += ["", f"muscles ({arm.n_muscles}):",
               f"  {'name':<14} {'board':>5} {'f_floor':>8} {'f_max':>7} {'K':>7}  {via}"]
@@ -92,8 +94,24 @@ def _mjcf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], li
     if fixed:
         source.append(f"  fixed tendons ignored (joint couplings, not muscles): "
                       f"{', '.join(fixed)}")
+    inactive = [c.equality for c in mjcf.couplings if not c.active]
+    if inactive:
+        source.append(f"  joint equalities off in the model (active=\"false\"), not applied: "
+                      f"{', '.join(inactive)}")
+    if mjcf.other_equalities:
+        source.append(f"  equality constraints that are not joint couplings, not applied to "
+                      f"the muscles' geometry: {', '.join(mjcf.other_equalities)}")
     kinds = {j.name: j.type for j in mjcf.joints}
-    locked = [f"  {name:<22} {kinds[name]:<10} at {value:.4g}" for name, value in robot.locked]
+    coupled = {c.follower: c for c in mjcf.couplings if c.active}
+    locked = []
+    for name, value in robot.locked:
+        how = "" if name not in coupled else (
+            f" (by equality '{coupled[name].equality}')" if coupled[name].leader is None
+            else f" (follows {coupled[name].leader}: equality '{coupled[name].equality}')")
+        locked.append(f"  {name:<22} {kinds[name]:<10} at {value:.4g}{how}")
+    for c in robot.couplings:
+        locked.append(f"  {c.follower:<22} {kinds[c.follower]:<10} follows {c.leader}: "
+                      f"{c.formula()} (equality '{c.equality}')")
     held = [j.name for j in mjcf.joints if j.type in ("ball", "free")]
     if held:
         locked.append(f"  {', '.join(held)}: ball/free, held at the model's qpos0")

@@ -103,3 +103,18 @@ def both_ways_problem(arm: ArmModel, report: RoutingReport) -> str | None:
 
 #: what to do about a joint that cannot be turned both ways
 BOTH_WAYS_FIX = "route a muscle on the missing side or narrow that joint's range"
+
+
+def usable_problem(arm: ArmModel, report: RoutingReport | None = None) -> str | None:
+    """What keeps a description from being simulated or collected, in one phrase with what
+    to do (None: nothing). `pimbs simulate` and `pimbs collect` refuse with it and `pimbs
+    robot` marks it in its explanation, so no command accepts what another refuses.
+
+    The check: every driven joint turned both ways at the centre of the ranges, their
+    corners and seeded random poses (``check_poses``; ``report`` if already measured there).
+    """
+    report = routing_report(arm, check_poses(arm)) if report is None else report
+    problem = both_ways_problem(arm, report)
+    if problem is None:
+        return None
+    return f"some driven joints cannot be turned both ways ({problem}); {BOTH_WAYS_FIX}"
