@@ -454,7 +454,7 @@ def _muscle_settings(entry: dict, field: str, path: Path, sources: dict[str, str
         values[key] = value
     floor, ceiling = values["f_floor"], values["f_max"]
     if not 0 <= floor < ceiling:
-        where = fix or (f"Set f_floor (or f_max) in muscle '{name}''s entry of {path.name}, "
+        where = fix or (f"set f_floor (or f_max) in muscle '{name}''s entry of {path.name}, "
                         f"e.g. '- {{name: {name}, f_floor: {ceiling / 20:.2g}, ...}}'")
         raise DescriptionError(
             path, f"{field}.f_floor",
@@ -563,7 +563,11 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
     couplings = _mjcf_couplings(arm, xml, path)
     hinges = arm.hinge_names()
     if not hinges:
-        raise DescriptionError(path, "joints", f"{xml} has no hinge joint",
+        kinds = sorted({j.type for j in arm.joints})
+        what = (f"has no hinge joint (its joints: {', '.join(kinds)})" if arm.joints
+                else "has no joint" + ("" if arm.tendons else " and no tendon: nothing a "
+                                       "muscle could move"))
+        raise DescriptionError(path, "joints", f"{xml} {what}",
                                "Muscles drive hinge joints; add <joint type=\"hinge\">")
     independent = [h for h in hinges if h not in couplings]
     if not independent:
@@ -746,9 +750,9 @@ def _limit_fix(name: str, settings: dict, listed: bool, floor_in_defaults: bool,
              and f_max > 0 else "1")
     entry = f"'- {{name: {name}, f_floor: {floor}}}'"
     if path.suffix.lower() == ".xml":
-        return (f"Write a muscle file naming this MJCF ('mjcf: {path.name}', docs/mujoco.md) "
+        return (f"write a muscle file naming this MJCF ('mjcf: {path.name}', docs/mujoco.md) "
                 f"and set f_floor (or f_max) for it under 'muscles': {entry}")
     where = "its entry under 'muscles'" if listed else "an entry for it under 'muscles'"
     also = (" or take f_floor out of 'defaults' (each muscle then gets the smaller of 10 N and "
             "f_max/20)" if floor_in_defaults else "")
-    return f"Set f_floor (or f_max) in {where} of {path.name}: {entry}{also}"
+    return f"set f_floor (or f_max) in {where} of {path.name}: {entry}{also}"

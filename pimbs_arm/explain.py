@@ -116,8 +116,32 @@ def _mjcf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], li
     if held:
         locked.append(f"  {', '.join(held)}: ball/free, held at the model's qpos0")
     tendons = {t.name: t for t in mjcf.tendons}
+    source.append(_limits_line(robot, tendons))
     routes = [" > ".join(tendons[m.name].route) for m in robot.muscles]
     return source, kinds, locked, routes
+
+
+def _limits_line(robot, tendons) -> str:
+    """Where the muscles' f_max came from: the tendons' actuators, the muscle file, or the
+    default for a tendon nothing declares a force for (and the floor's rule)."""
+    from pimbs_calibration.description import MJCF_MUSCLE_DEFAULTS, mjcf_default_floor
+
+    counts = {"actuator": 0, "file": 0, "default": 0}
+    for m in robot.muscles:
+        declared = tendons[m.name].force_limit
+        if declared is not None and m.f_max == declared:
+            counts["actuator"] += 1
+        elif declared is None and m.f_max == MJCF_MUSCLE_DEFAULTS["f_max"]:
+            counts["default"] += 1
+        else:
+            counts["file"] += 1
+    parts = [f"{what} for {n} muscle{'s' * (n != 1)}" for n, what in (
+        (counts["actuator"], "its tendon's actuator"), (counts["file"], "the muscle file"),
+        (counts["default"], f"the default {MJCF_MUSCLE_DEFAULTS['f_max']:g} N (no actuator "
+                            "declares a force)")) if n]
+    scaled = sum(m.f_floor == mjcf_default_floor(m.f_max) for m in robot.muscles)
+    return (f"  limits: f_max from {', '.join(parts)}; f_floor = min(10 N, f_max/20) for "
+            f"{scaled} of {len(robot.muscles)} (a muscle file may set either)")
 
 
 def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:

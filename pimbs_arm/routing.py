@@ -86,18 +86,26 @@ def check_both_ways(arm: ArmModel) -> None:
 
 def both_ways_problem(arm: ArmModel, report: RoutingReport) -> str | None:
     """Which driven joints the routing cannot turn which way, at how many of the checked
-    poses, in one phrase (None when every joint turns both ways everywhere).
+    poses, in one phrase (None when every joint turns both ways everywhere). Joints no
+    muscle crosses anywhere are named together, first.
 
-    `pimbs robot` and `pimbs simulate` refuse a routing with the same words, so a user meets
-    one diagnosis whichever command they ran first.
+    `pimbs robot`, `pimbs simulate` and `pimbs collect` refuse a routing with the same words
+    (``usable_problem``), so a user meets one diagnosis whichever command they ran first.
     """
     bad = report.one_sided()
-    parts = []
+    uncrossed = [j for j in range(arm.n_joints) if not report.crosses()[:, j].any()]
+    parts = [f"no muscle crosses {', '.join(arm.joints[j] for j in uncrossed)}"] \
+        if uncrossed else []
     for j in np.flatnonzero(bad.any(axis=0)):
+        if j in uncrossed:
+            continue
         where = np.flatnonzero(bad[:, j])
-        sides = sorted({report.missing_side(p, j) for p in where})
-        parts.append(f"{arm.joints[j]} not towards {' or '.join(sides)} angles at "
-                     f"{len(where)} of {len(report.poses)} checked poses")
+        sides = {report.missing_side(p, j) for p in where}
+        turns = sorted(sides - {"either"})
+        words = ([f"towards {' or '.join(turns)} angles"] if turns else []) + (
+            ["at all"] if "either" in sides else [])
+        parts.append(f"{arm.joints[j]} not {' or '.join(words)} at {len(where)} of "
+                     f"{len(report.poses)} checked poses")
     return "; ".join(parts) or None
 
 
@@ -117,4 +125,8 @@ def usable_problem(arm: ArmModel, report: RoutingReport | None = None) -> str | 
     problem = both_ways_problem(arm, report)
     if problem is None:
         return None
-    return f"some driven joints cannot be turned both ways ({problem}); {BOTH_WAYS_FIX}"
+    fix = BOTH_WAYS_FIX
+    if not report.crosses().any(axis=0).all():
+        fix += ("; a joint no muscle crosses is left out of 'joints' in a muscle file (then "
+                "held at 'lock' or its reference pose)")
+    return f"some driven joints cannot be turned both ways ({problem}); {fix}"
