@@ -158,6 +158,7 @@ def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) ->
         lines.append(f"  {name:<22} FAILS at {len(where)} of {n} poses, e.g.:")
         for p in where[:max_poses]:
             pose = ", ".join(f"{a:.3f}" for a in report.poses[p])
-            lines.append(f"    theta=[{pose}]: nothing turns it towards "
-                         f"{report.missing_side(p, j)} angles")
+            side = report.missing_side(p, j)
+            towards = "either way" if side == "either" else f"towards {side} angles"
+            lines.append(f"    theta=[{pose}]: nothing turns it {towards}")
     return lines

@@ -100,3 +100,25 @@ def test_a_finger_without_its_extensor_is_explained_and_refused(tmp_path, monkey
         assert res.exit_code == 1 and res.output.count("\n") == 1, res.output
         assert said in res.output
     assert not Path("s.parquet").exists() and not Path("c.parquet").exists()
+
+
+def test_more_tendons_than_one_bus_carries_is_one_line(tmp_path, monkeypatch):
+    """MyoSuite's legs have 80 tendons, its torso 210: as a bare MJCF they get boards 1..N,
+    more than PIMBS v1's 32 ids on one bus. `collect` says so, and how to pick a bus's
+    muscles, before anything is sent."""
+    monkeypatch.chdir(tmp_path)
+    sites = "".join(f'<site name="o{i}" pos="{0.001 * i - 0.02} 0 0.1"/>' for i in range(33))
+    inserts = "".join(f'<site name="i{i}" pos="{0.001 * i - 0.02} 0 -0.1"/>' for i in range(33))
+    tendons = "".join(f'<spatial name="t{i}"><site site="o{i}"/><site site="i{i}"/></spatial>'
+                      for i in range(33))
+    xml = tmp_path / "many.xml"
+    xml.write_text(f'<mujoco><worldbody>{sites}<body><joint name="j" axis="0 1 0" '
+                   f'range="-0.3 0.3"/><geom size="0.02" mass="0.1"/>{inserts}</body>'
+                   f'</worldbody><tendon>{tendons}</tendon></mujoco>')
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot", str(xml),
+                                    "-n", "2", "--out", "c.parquet"])
+    assert res.exit_code == 1 and res.output.count("\n") == 1, res.output
+    assert f"{xml}: muscle t31 (board 32, pimbs-v1): board_id 32 out of range 0..31" \
+        in res.output
+    assert "write a muscle file naming many.xml ('mjcf:')" in res.output
+    assert "Traceback" not in res.output
