@@ -454,8 +454,9 @@ def _muscle_settings(entry: dict, field: str, path: Path, sources: dict[str, str
         values[key] = value
     floor, ceiling = values["f_floor"], values["f_max"]
     if not 0 <= floor < ceiling:
-        where = fix or (f"set f_floor (or f_max) in muscle '{name}''s entry of {path.name}, "
-                        f"e.g. '- {{name: {name}, f_floor: {ceiling / 20:.2g}, ...}}'")
+        where = fix or (f"set f_floor (or f_max) in the entry of muscle '{name}' in "
+                        f"{path.name}, e.g. '- {{name: {name}, f_floor: {ceiling / 20:.2g}, "
+                        "...}'")
         raise DescriptionError(
             path, f"{field}.f_floor",
             f"muscle '{name}': its holding floor f_floor {floor:g} N "
