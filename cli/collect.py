@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import check_output, robot_option, user_errors
+from pimbs_cli.common import check_output, load_usable_arm, robot_option, user_errors
 
 
 def _default_out(robot: str) -> Path:
@@ -105,7 +105,6 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
-    from pimbs_arm.model import ArmModel
     from pimbs_arm.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
@@ -120,7 +119,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
                                f"use --port virtual, not {port!r}")
     if resume and out is None:
         raise click.UsageError("--resume needs --out FILE (the recording to continue)")
-    model = ArmModel.load(robot)
+    model = load_usable_arm(robot)  # the checks `simulate` runs
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
     check_output(out, force=True, what="recording")  # no directory made for a mistyped path

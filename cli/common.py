@@ -44,6 +44,23 @@ def robot_option(default: str | None = "two-link-4-muscle") -> Callable[[F], F]:
                              "to a .muscles.yaml robot description, or an MJCF .xml")
 
 
+def load_usable_arm(robot: str) -> Any:
+    """The ``ArmModel`` that `pimbs simulate` and `pimbs collect` run on: the description,
+    refused in one line where it fails a check (``pimbs_arm.routing.usable_problem``, which
+    `pimbs robot` marks in place). One function for both commands, so neither accepts a
+    description the other refuses."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.routing import usable_problem
+    from pimbs_calibration.description import load_robot
+
+    arm = ArmModel(load_robot(robot), check=False)
+    problem = usable_problem(arm)
+    if problem:
+        raise click.ClickException(f"{arm.robot.muscle_path}: {problem}; `pimbs robot "
+                                   f"{robot}` shows the moment arms and the poses")
+    return arm
+
+
 def force_option() -> Callable[[F], F]:
     """`--force`: the only way any command replaces an existing recording, model or file."""
     return click.option("--force", is_flag=True,

@@ -6,7 +6,14 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import check_output, force_option, progress, robot_option, user_errors
+from pimbs_cli.common import (
+    check_output,
+    force_option,
+    load_usable_arm,
+    progress,
+    robot_option,
+    user_errors,
+)
 
 
 @click.command("simulate")
@@ -31,15 +38,13 @@ from pimbs_cli.common import check_output, force_option, progress, robot_option,
 def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
             conceal: tuple[str, ...], noise: float, force: bool) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
-    from pimbs_arm.model import ArmModel
     from pimbs_arm.poses import replaced_note
     from pimbs_recording.format import RecordingWriteError, write_recording
     from pimbs_sim.effects import parse_effect
     from pimbs_sim.simulate import simulate
 
     check_output(out, force=force, what="recording")
-    arm = ArmModel.load(robot)
-    _refuse_one_sided(arm, robot)
+    arm = load_usable_arm(robot)  # the checks `collect` runs too
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
     with progress("simulate", samples, "samples") as update:
         data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects,
@@ -55,15 +60,3 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")
 
-
-def _refuse_one_sided(arm, robot: str) -> None:
-    """Refuse, as `pimbs robot` does, an arm whose muscles cannot turn a joint both ways
-    somewhere in its range: its recording would hold poses no real arm of that routing
-    can be held in against gravity, with nothing in the file to say so."""
-    from pimbs_arm.routing import BOTH_WAYS_FIX, both_ways_problem, check_poses, routing_report
-
-    problem = both_ways_problem(arm, routing_report(arm, check_poses(arm)))
-    if problem:
-        raise click.ClickException(
-            f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways "
-            f"({problem}), as `pimbs robot {robot}` shows with the poses; {BOTH_WAYS_FIX}")

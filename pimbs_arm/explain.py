@@ -47,8 +47,10 @@ def describe(arm: ArmModel, report: RoutingReport, max_poses: int = 5,
         lines.append(f"  {name:<22} {kinds[name]:<10} sampled in [{rng[0]:.3g}, "
                      f"{rng[1]:.3g}] rad, {what} limits {limits}")
     if locked_lines:
-        lines += ["", f"locked joints ({len(locked_lines)}; not driven by muscles, held rigid):",
-                  *locked_lines]
+        what = ("locked and following joints ({}; not driven by muscles: held rigid, or moved "
+                "by the joint they follow):" if any(" follows " in x for x in locked_lines)
+                else "locked joints ({}; not driven by muscles, held rigid):")
+        lines += ["", what.format(len(locked_lines)), *locked_lines]
     via = "MuJoCo tendon path" if mjcf else "via points"
     name = max(14, *(len(m) for m in arm.muscles))
     lines += ["", f"muscles ({arm.n_muscles}):",
@@ -158,14 +160,54 @@ def _mjcf_parts(arm: ArmModel) -> tuple[list[str], dict[str, str], list[str], li
     if fixed:
         source.append(f"  fixed tendons ignored (joint couplings, not muscles): "
                       f"{', '.join(fixed)}")
+    inactive = [c.equality for c in mjcf.couplings if not c.active]
+    if inactive:
+        source.append(f"  joint equalities off in the model (active=\"false\"), not applied: "
+                      f"{', '.join(inactive)}")
+    if mjcf.other_equalities:
+        source.append(f"  equality constraints that are not joint couplings, not applied to "
+                      f"the muscles' geometry: {', '.join(mjcf.other_equalities)}")
     kinds = {j.name: j.type for j in mjcf.joints}
-    locked = [f"  {name:<22} {kinds[name]:<10} at {value:.4g}" for name, value in robot.locked]
+    coupled = {c.follower: c for c in mjcf.couplings if c.active}
+    locked = []
+    for name, value in robot.locked:
+        how = "" if name not in coupled else (
+            f" (by equality '{coupled[name].equality}')" if coupled[name].leader is None
+            else f" (follows {coupled[name].leader}: equality '{coupled[name].equality}')")
+        locked.append(f"  {name:<22} {kinds[name]:<10} at {value:.4g}{how}")
+    for c in robot.couplings:
+        locked.append(f"  {c.follower:<22} {kinds[c.follower]:<10} follows {c.leader}: "
+                      f"{c.formula()} (equality '{c.equality}')")
     held = [j.name for j in mjcf.joints if j.type in ("ball", "free")]
     if held:
         locked.append(f"  {', '.join(held)}: ball/free, held at the model's qpos0")
     tendons = {t.name: t for t in mjcf.tendons}
+    source.append(_limits_line(robot, tendons))
     routes = [" > ".join(tendons[m.name].route) for m in robot.muscles]
     return source, kinds, locked, routes
+
+
+def _limits_line(robot, tendons) -> str:
+    """Where the muscles' f_max came from: the tendons' actuators, the muscle file, or the
+    default for a tendon nothing declares a force for (and the floor's rule)."""
+    from pimbs_calibration.description import MJCF_MUSCLE_DEFAULTS, mjcf_default_floor
+
+    counts = {"actuator": 0, "file": 0, "default": 0}
+    for m in robot.muscles:
+        declared = tendons[m.name].force_limit
+        if declared is not None and m.f_max == declared:
+            counts["actuator"] += 1
+        elif declared is None and m.f_max == MJCF_MUSCLE_DEFAULTS["f_max"]:
+            counts["default"] += 1
+        else:
+            counts["file"] += 1
+    parts = [f"{what} for {n} muscle{'s' * (n != 1)}" for n, what in (
+        (counts["actuator"], "its tendon's actuator"), (counts["file"], "the muscle file"),
+        (counts["default"], f"the default {MJCF_MUSCLE_DEFAULTS['f_max']:g} N (no actuator "
+                            "declares a force)")) if n]
+    scaled = sum(m.f_floor == mjcf_default_floor(m.f_max) for m in robot.muscles)
+    return (f"  limits: f_max from {', '.join(parts)}; f_floor = min(10 N, f_max/20) for "
+            f"{scaled} of {len(robot.muscles)} (a muscle file may set either)")
 
 
 def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) -> list[str]:
@@ -182,6 +224,7 @@ def both_ways_lines(arm: ArmModel, report: RoutingReport, max_poses: int = 5) ->
         lines.append(f"  {name:<22} FAILS at {len(where)} of {n} poses, e.g.:")
         for p in where[:max_poses]:
             pose = ", ".join(f"{a:.3f}" for a in report.poses[p])
-            lines.append(f"    theta=[{pose}]: nothing turns it towards "
-                         f"{report.missing_side(p, j)} angles")
+            side = report.missing_side(p, j)
+            towards = "either way" if side == "either" else f"towards {side} angles"
+            lines.append(f"    theta=[{pose}]: nothing turns it {towards}")
     return lines

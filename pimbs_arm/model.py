@@ -60,7 +60,8 @@ class ArmModel:
     and the equilibrium are computed here, the same for every backend.
     """
 
-    def __init__(self, robot: RobotDescription, backend: ArmBackend | None = None) -> None:
+    def __init__(self, robot: RobotDescription, backend: ArmBackend | None = None, *,
+                 check: bool = True) -> None:
         self.robot = robot
         self.joints = robot.joints
         self.muscles = tuple(m.name for m in robot.muscles)
@@ -72,9 +73,10 @@ class ArmModel:
         self.backend = make_backend(robot) if backend is None else backend
         self.joint_limits = self.backend.joint_limits
         self._h0 = self.backend.kinematics(np.zeros(self.n_joints), jacobian=False).length
-        from pimbs_arm.routing import check_both_ways  # needs a built model
+        if check:  # `pimbs robot` explains a description that fails it (check=False)
+            from pimbs_arm.routing import check_both_ways  # needs a built model
 
-        check_both_ways(self)
+            check_both_ways(self)
 
     @classmethod
     def load(cls, name_or_path: str | Path) -> ArmModel:

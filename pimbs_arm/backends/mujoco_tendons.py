@@ -12,7 +12,12 @@ and the gravity derivative (from ``qfrc_bias``); the equilibrium solver uses the
 choose Newton steps, its stopping test is on the exact gradient.
 
 Joints that are not driven stay at their locked value (the description's ``locked``, default
-``qpos0``); ball and free joints stay at ``qpos0``.
+``qpos0``); ball and free joints stay at ``qpos0``. A joint that an ``<equality><joint>``
+couples to a driven one (the description's ``couplings``) is placed where the equality puts
+it, exactly, before MuJoCo runs: lengths and gravity are those of the coupled model, and the
+Jacobian and gravity with respect to the driven joints run through the coupling by the chain
+rule, ``G = ten_J · S`` and ``g = Sᵀ qfrc_bias`` with ``S`` = d(every moved joint)/d(driven
+joints) (the quartic's slope along each chain of leaders).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import mujoco
 import numpy as np
 
 from pimbs_arm.backend import Kinematics, Skeleton, WirePath
+from pimbs_calibration.coupling import CoupledJoints
 from pimbs_calibration.description import RobotDescription
 from pimbs_calibration.mjcf import compile_model, joint_names, tendon_names
 from pimbs_calibration.urdf_model import UNLIMITED
@@ -54,6 +60,11 @@ class MujocoBackend:
         jid = np.array([names.index(j) for j in self.joints], dtype=int)
         self._qadr = m.jnt_qposadr[jid]
         self._dof = m.jnt_dofadr[jid]
+        # the driven joints and the followers they move (qpos / dof indices)
+        self._coupled = CoupledJoints(
+            self.joints, self.robot.couplings,
+            {n: int(m.jnt_qposadr[i]) for i, n in enumerate(names)},
+            {n: int(m.jnt_dofadr[i]) for i, n in enumerate(names)})
         tendons = tendon_names(m)
         self._tendon = np.array([tendons.index(mu.name) for mu in self.robot.muscles], dtype=int)
         self._q0 = m.qpos0.copy()
@@ -126,10 +137,12 @@ class MujocoBackend:
 
     # ----------------------------------------------------------------------- MuJoCo passes
     def _position(self, theta: np.ndarray) -> mujoco.MjData:
-        """Run MuJoCo's position stage at theta (caller holds the lock)."""
+        """Run MuJoCo's position stage at theta, followers where their couplings put them
+        (caller holds the lock)."""
         d = self._data
         d.qpos[:] = self._q0
         d.qpos[self._qadr] = theta
+        self._coupled.place(d.qpos)
         d.qvel[:] = 0.0
         mujoco.mj_kinematics(self.mj_model, d)
         mujoco.mj_comPos(self.mj_model, d)
@@ -137,18 +150,22 @@ class MujocoBackend:
         return d
 
     def _ten_j(self, d: mujoco.MjData) -> np.ndarray:
-        """``ten_J`` (M, N) of the muscles' tendons and the driven dofs. MuJoCo stores it
-        sparse (rows of the model's ``ten_J_rowadr``/``rownnz``/``colind``) or, in older
-        releases, dense (ntendon, nv): both are read."""
+        """``ten_J`` (M, N) of the muscles' tendons with respect to the driven joints (through
+        the couplings). MuJoCo stores it sparse (rows of the model's ``ten_J_rowadr``/
+        ``rownnz``/``colind``) or, in older releases, dense (ntendon, nv): both are read."""
         m = self.mj_model
         values = np.asarray(d.ten_J).reshape(-1)
         if not hasattr(m, "ten_J_rowadr"):
-            return values.reshape(m.ntendon, m.nv)[np.ix_(self._tendon, self._dof)]
-        dense = np.zeros((m.ntendon, m.nv))
-        for t in self._tendon:
-            adr, nnz = m.ten_J_rowadr[t], m.ten_J_rownnz[t]
-            dense[t, m.ten_J_colind[adr:adr + nnz]] = values[adr:adr + nnz]
-        return dense[np.ix_(self._tendon, self._dof)]
+            dense = values.reshape(m.ntendon, m.nv)
+        else:
+            dense = np.zeros((m.ntendon, m.nv))
+            for t in self._tendon:
+                adr, nnz = m.ten_J_rowadr[t], m.ten_J_rownnz[t]
+                dense[t, m.ten_J_colind[adr:adr + nnz]] = values[adr:adr + nnz]
+        if not self.robot.couplings:
+            return dense[np.ix_(self._tendon, self._dof)]
+        S = self._coupled.jacobian(d.qpos)
+        return dense[np.ix_(self._tendon, self._coupled.columns)] @ S
 
     def kinematics(self, theta: np.ndarray, jacobian: bool = True) -> Kinematics:
         """MuJoCo's absolute tendon lengths (M,) and, if asked, ``ten_J`` (M, N)."""
@@ -172,11 +189,14 @@ class MujocoBackend:
             return self._bias(np.asarray(theta, dtype=np.float64))
 
     def _bias(self, theta: np.ndarray) -> np.ndarray:
-        """``qfrc_bias`` with qvel = 0 (gravity only) at theta, on the driven dofs."""
+        """``qfrc_bias`` with qvel = 0 (gravity only) at theta, on the driven joints (a
+        follower's share through its coupling: Sᵀ qfrc_bias, by virtual work)."""
         m, d = self.mj_model, self._position(theta)
         mujoco.mj_comVel(m, d)  # qvel = 0: zero velocities, as mj_fwdVelocity would leave
         mujoco.mj_rne(m, d, 0, d.qfrc_bias)  # what mj_fwdVelocity stores in qfrc_bias
-        return np.array(d.qfrc_bias[self._dof])
+        if not self.robot.couplings:
+            return np.array(d.qfrc_bias[self._dof])
+        return d.qfrc_bias[self._coupled.columns] @ self._coupled.jacobian(d.qpos)
 
     def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
         """d g / d theta (N, N) by central differences of ``qfrc_bias``."""
@@ -195,9 +215,11 @@ class MujocoBackend:
         return float(self.mj_model.body_mass[self.moving_bodies()].sum())
 
     def moving_bodies(self) -> np.ndarray:
-        """Ids of the bodies carried by a driven joint (their subtrees)."""
+        """Ids of the bodies carried by a driven joint or a follower (their subtrees)."""
         m = self.mj_model
-        carriers = set(m.jnt_bodyid[[joint_names(m).index(j) for j in self.joints]].tolist())
+        names = joint_names(m)
+        moved = [*self.joints, *(c.follower for c in self.robot.couplings)]
+        carriers = set(m.jnt_bodyid[[names.index(j) for j in moved]].tolist())
         moving = []
         for b in range(1, m.nbody):
             a = b
