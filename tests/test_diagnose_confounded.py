@@ -154,3 +154,32 @@ def test_poses_file_that_does_not_fit_the_robot_is_refused_in_one_line(tmp_path,
                                   str(tmp_path / "c.parquet")])
     assert r.exit_code != 0 and "holds 1 poses" in r.output
     assert not (tmp_path / "c.parquet").exists()
+
+
+def test_several_recordings_pair_each_with_its_own_reference():
+    from pimbs_learn.diagnosis.inputs import DiagnosisInputError
+
+    fixtures = Path(__file__).resolve().parents[1] / "fixtures"
+    real, sim = fixtures / "two_link_offset.parquet", fixtures / "two_link_sim.parquet"
+    with pytest.raises(DiagnosisInputError, match="one --reference per recording"):
+        diagnose([real, real], [sim])
+    r = CliRunner().invoke(main, ["diagnose", str(real), str(real), "--reference", str(sim),
+                                  "--reference", str(sim), "--corrected", "x.parquet"])
+    assert r.exit_code != 0 and "--corrected writes one recording" in r.output
+
+
+def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow):
+    """What the pose designer simulates for each explanation: the diagnosis' units turned
+    into the simulator's effects (stiffness as K_true/K_model, a mass as its scale)."""
+    from pimbs_learn.diagnosis.design import concealed
+    from pimbs_learn.diagnosis.model import Unit
+
+    units = [Unit("tension_offset", 0), Unit("elastic_stiffness", 5),
+             Unit("link_mass", 0, "distal"), Unit("thermal_drift", -1, "common")]
+    effects = {e.name: e for e in concealed(units, np.array([20.0, 0.25, -0.2, 0.5]), elbow)}
+    assert effects["tension_offset"].muscles == ("TRIlong_tendon",)
+    assert effects["tension_offset"].magnitude == pytest.approx(20.0)
+    assert effects["elastic_stiffness"].magnitude == pytest.approx(0.8)
+    assert effects["link_mass"].magnitude == pytest.approx(0.8)
+    assert effects["thermal_drift"].muscles == ()  # every loadcell
+    assert list(effects)[0] == "link_mass"  # the arm's physics before the loadcell chain

@@ -34,13 +34,21 @@ tried: docs/diagnosis-notebook.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
 
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
-from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, Unit, units_of
+from pimbs_learn.diagnosis.model import (
+    EFFECTS,
+    Fit,
+    Physics,
+    Samples,
+    Unit,
+    evaluate,
+    units_of,
+)
 from pimbs_learn.diagnosis.select import MIN_CV_GAIN, P_VALUE, Candidate, screen
 
 PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
@@ -72,10 +80,12 @@ class Verdict:
     lr: float              # A against the model without it (given the other named effects)
     delta_bic: float
     rivals: list[Rival]
+    # (effect, units, per-recording likelihood ratio of A over B): recordings that disagree
+    contradictions: list = field(default_factory=list)
 
     @property
     def identified(self) -> bool:
-        return not self.rivals
+        return not self.rivals and not self.contradictions
 
 
 def passes(lr: float, df: int, n: int) -> bool:
@@ -148,7 +158,7 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
-    rivals = []
+    rivals, contradictions = [], []
     for effect in effects:
         if effect == named.effect:
             continue
@@ -167,6 +177,9 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
                            x0=np.concatenate([_sub(final, keep + named.units),
                                               _sub(fit_b, units)]))
         a_given_b = _lr(both, fit_b)
+        split = by_session(physics, data, final, fit_b)
+        if split is not None:
+            contradictions.append((effect, units, split))
         held = None
         if passes(a_given_b, df_a, n):
             held = heldout(physics, data, fit_b, both)
@@ -175,4 +188,29 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
         rivals.append(Rival(effect, units, fit_b, lr_b, len(units), a_given_b,
                             _lr(both, final), lr_b - len(units) * np.log(n), held))
     rivals.sort(key=lambda r: -r.lr)
-    return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), rivals)
+    return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), rivals,
+                   contradictions)
+
+
+def by_session(physics: Physics, data: Samples, fit_a: Fit, fit_b: Fit) -> list[float] | None:
+    """Per recording, how much better ``fit_a`` explains its rows than ``fit_b`` (a
+    likelihood ratio with ``fit_a``'s noise levels held) — when one recording prefers each
+    by more than the naming test accepts, else None.
+
+    Recordings of one arm must agree on what is wrong with it. When a session designed to
+    separate A from B prefers B while the first prefers A, the models cannot represent the
+    arm on one of them (the elbow with another routing: its learned body schema leaves a
+    torque error of half the mismatch whatever the explanation), and naming either would
+    follow whichever session has more rows.
+    """
+    if data.session is None or len(np.unique(data.session)) < 2:
+        return None
+    sq = []
+    for fit in (fit_a, fit_b):
+        r_len, r_tau = evaluate(physics, fit, data)
+        sq.append(np.sum(np.hstack([r_len / fit_a.sigma_len, r_tau / fit_a.sigma_tau]) ** 2,
+                         axis=1))
+    d = sq[1] - sq[0]
+    per = [float(d[data.session == s].sum()) for s in np.unique(data.session)]
+    need = chi2.isf(P_VALUE, 1)
+    return per if max(per) >= need and min(per) <= -need else None

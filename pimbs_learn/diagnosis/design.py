@@ -51,7 +51,6 @@ from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
 from pimbs_sim.effects import T_REF, Effect
 from pimbs_sim.simulate import simulate
 
-DESIGN_POSES = 30   # the next session: 30 poses are a few minutes on a real arm
 POOL = 120          # candidate poses, each with three tension floors
 POOL_SEED = 7919    # the candidates' seed: one plan for one arm, whatever the recording
 
@@ -184,7 +183,7 @@ class _Test:
 
 
 def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
-                     k: int = DESIGN_POSES, noise: dict | None = None) -> dict:
+                     k: int, noise: dict | None = None) -> dict:
     """The ``k`` poses (and floors) that best tell the named effect from its rivals."""
     noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
     pool = candidate_pool(arm)

@@ -288,6 +288,7 @@ def combine(parts: list[Paired]) -> Paired:
                                    "tau", "time", "sample")})
         out.temp_zero = np.concatenate([np.broadcast_to(z, s.tension.shape)
                                         for s, z in zip(samples, zero, strict=True)])
+        out.session = np.concatenate([np.full(s.n, i) for i, s in enumerate(samples)])
         return out
 
     zeros = [p.temp_zero for p in parts]

@@ -99,6 +99,7 @@ class Samples:
     # (B, M) °C at which each row's loadcells were zeroed, when the rows come from several
     # sessions (each zeroes its loadcells at its start); None: ``Physics.temp_zero``
     temp_zero: np.ndarray | None = None
+    session: np.ndarray | None = None  # (B,) which recording each row came from
 
     def rows(self, idx: np.ndarray) -> Samples:
         return Samples(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})

@@ -156,10 +156,23 @@ def ambiguity_entry(verdict: Verdict, physics: Physics, data: Samples, joints: l
                        "so this recording cannot tell which it is"}
 
 
-def unexplained(ambiguous: list[dict], residual: dict, location: dict) -> list[dict]:
+def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:
+    """An effect the recordings disagree on: one prefers it, another a rival."""
+    return {"why": "the recordings disagree on what explains the mismatch",
+            "candidates": [verdict.named.effect, *(c[0] for c in verdict.contradictions)],
+            "per_recording": [
+                {"rival": effect, "units": [u.label for u in units],
+                 "likelihood_ratio_of_first_over_rival": dict(zip(recordings, per,
+                                                                  strict=True))}
+                for effect, units, per in verdict.contradictions]}
+
+
+def unexplained(ambiguous: list[dict], residual: dict, location: dict,
+                disputed: list[dict] = ()) -> list[dict]:
     """Mismatch no identifiable effect accounts for, with where it is: structure left after
-    every fitted explanation, and ambiguities with more explanations than can be listed."""
-    out = []
+    every fitted explanation, ambiguities with more explanations than can be listed, and
+    effects the recordings disagree on."""
+    out = [{**d, "where": location["summary"]} for d in disputed]
     for amb in ambiguous:
         if len(amb["either"]) > MAX_EITHER:
             out.append({"why": f"{len(amb['either'])} effects explain it about equally",
@@ -220,11 +233,18 @@ def ambiguity_text(result: dict) -> list[str]:
                          "together")
         elif "separating_poses" not in amb:
             lines.append("  give --robot to get the poses that would tell them apart")
+        else:
+            lines.append(f"  {amb.get('separating_poses_note', 'no poses proposed')}")
         lines.append("")
     for u in result.get("unexplained", []):
         lines.append(f"Unexplained ({u['why']}"
                      + (": " + ", ".join(u["candidates"]) if u.get("candidates") else "")
                      + "); where:")
+        for d in u.get("per_recording", []):
+            lines.append(f"  {u['candidates'][0]} against {d['rival']}, likelihood ratio per "
+                         "recording: " + ", ".join(
+                             f"{path} {lr:+.0f}" for path, lr in
+                             d["likelihood_ratio_of_first_over_rival"].items()))
         lines += [f"  - {w}" for w in u["where"]]
         lines.append("")
     return lines
@@ -243,9 +263,10 @@ def text_report(result: dict) -> str:
              "Where it disagrees (before any effect is modelled):"]
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")
-    if not result["effects"] and result.get("ambiguous"):
-        lines.append("No effect identified: the mismatch has explanations (below) that this "
-                     "recording cannot tell apart.")
+    unsure = bool(result.get("ambiguous") or result.get("unexplained"))
+    if not result["effects"] and unsure:
+        lines.append("No effect identified: below, the explanations this recording cannot "
+                     "tell apart and what no effect explains.")
     elif not result["effects"]:
         lines.append("No significant missing physics: no candidate passed the "
                      "likelihood-ratio, BIC and cross-validation tests (see below whether "
@@ -265,7 +286,7 @@ def text_report(result: dict) -> str:
         lines += [""] + leftover_text(result["residual"])
     if "detectable" in result:
         lines += [""] + detectable_text(result["detectable"], not result["effects"]
-                                        and not result.get("ambiguous"))
+                                        and not unsure)
     fit = result["fit"]
     lines += ["", f"Held-out fit ({fit['metric']}): before {fit['before']:.4g} → after "
                   f"{fit['after']:.4g}",

@@ -8,7 +8,6 @@ import numpy as np
 import pyarrow as pa
 
 from pimbs_learn.diagnosis.confound import judge
-from pimbs_learn.diagnosis.design import DESIGN_POSES, separating_poses
 from pimbs_learn.diagnosis.detect import detectable
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import (
@@ -22,11 +21,17 @@ from pimbs_learn.diagnosis.inputs import (
 from pimbs_learn.diagnosis.leftover import leftover
 from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
-from pimbs_learn.diagnosis.report import ambiguity_entry, effect_entry, unexplained
+from pimbs_learn.diagnosis.report import (
+    ambiguity_entry,
+    disputed_entry,
+    effect_entry,
+    unexplained,
+)
 from pimbs_learn.diagnosis.select import select_effects
 from pimbs_recording.format import Recording, read_recording, write_recording
 
 Source = str | Path | Recording
+DESIGN_POSES = 30  # poses proposed to settle an ambiguity: a few minutes on a real arm
 FIT_METRIC = ("mean squared held-out residual of lengths and torques, each channel "
               "divided by its noise level under the model without effects (5-fold CV)")
 
@@ -82,9 +87,10 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     # each named effect against its confounders: the others refitted in its place
     verdicts = [judge(physics, data, final, cand, effects) for cand in named]
     sure = [v.named for v in verdicts if v.identified]
-    unsure = [v for v in verdicts if not v.identified]
+    unsure = [v for v in verdicts if v.rivals and not v.contradictions]
+    disputed = [v for v in verdicts if v.contradictions]
     corrected = final
-    if unsure:  # what --corrected undoes: the identified effects alone
+    if unsure or disputed:  # what --corrected undoes: the identified effects alone
         units = [u for c in sure for u in c.units]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
@@ -96,10 +102,17 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                for cand in sure]
     ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
                  for v in unsure]
-    if arm is not None and design_poses > 0:
+    if arm is not None and design_poses > 0 and unsure:
+        from pimbs_arm.model import InfeasiblePoseError
+        from pimbs_learn.diagnosis.design import separating_poses
+
         for v, entry in zip(unsure, ambiguous, strict=True):
-            entry["separating_poses"] = separating_poses(
-                arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
+            try:
+                entry["separating_poses"] = separating_poses(
+                    arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
+            except InfeasiblePoseError as exc:  # an explanation the arm could not hold
+                entry["separating_poses"] = None
+                entry["separating_poses_note"] = f"no poses proposed: {exc}"
     residual = leftover(physics, final, data, paired.joints, paired.muscles,
                         paired.reference)
     sources = [str(r.path) for r in reals]
@@ -111,7 +124,8 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "rows": data.n, "joints": paired.joints, "muscles": paired.muscles,
         "effects": entries,
         "ambiguous": ambiguous,
-        "unexplained": unexplained(ambiguous, residual, location),
+        "unexplained": unexplained(ambiguous, residual, location,
+                                   [disputed_entry(v, [s for s in sources]) for v in disputed]),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
