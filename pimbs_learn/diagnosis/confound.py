@@ -177,7 +177,7 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
                            x0=np.concatenate([_sub(final, keep + named.units),
                                               _sub(fit_b, units)]))
         a_given_b = _lr(both, fit_b)
-        split = by_session(physics, data, final, fit_b)
+        split = by_recording(physics, data, final, fit_b)
         if split is not None:
             contradictions.append((effect, units, split))
         held = None
@@ -192,7 +192,7 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
                    contradictions)
 
 
-def by_session(physics: Physics, data: Samples, fit_a: Fit, fit_b: Fit) -> list[float] | None:
+def by_recording(physics: Physics, data: Samples, fit_a: Fit, fit_b: Fit) -> list[float] | None:
     """Per recording, how much better ``fit_a`` explains its rows than ``fit_b`` (a
     likelihood ratio with ``fit_a``'s noise levels held) — when one recording prefers each
     by more than the naming test accepts, else None.

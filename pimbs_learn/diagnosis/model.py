@@ -97,7 +97,7 @@ class Samples:
     # dominated by loadcell noise (d/df = 1/(K(1+f))), so its length says little.
     len_weight: np.ndarray | None = None
     # (B, M) °C at which each row's loadcells were zeroed, when the rows come from several
-    # sessions (each zeroes its loadcells at its start); None: ``Physics.temp_zero``
+    # recordings (each zeroes its loadcells at its start); None: ``Physics.temp_zero``
     temp_zero: np.ndarray | None = None
     session: np.ndarray | None = None  # (B,) which recording each row came from
 
