@@ -56,9 +56,12 @@ def _explanations(result: dict) -> list[set[str]]:
 
 def test_elbow_offset_with_another_routing_is_either_offset_or_mass(tmp_path, elbow):
     """Alone, the lighter forearm fits best (ΔBIC 18 ahead) and used to be named with
-    p 1e-57; what it adds beside the offset is not confirmed on held-out rows."""
+    p 1e-57; what it adds beside the offset is not confirmed on held-out rows. The poses
+    proposed to separate them do not settle it on this arm — its learned body schema leaves
+    half the torque mismatch whatever the explanation — and the two recordings then
+    disagree: still no name, never the wrong one."""
     real, ref = _pair(tmp_path, elbow, 200, [OFFSET, "routing:0.002"])
-    result, _ = diagnose(real, ref)
+    result, _ = diagnose(real, ref, robot=ELBOW)
     named = {e["name"] for e in result["effects"]}
     assert not named & {"tension_offset", "link_mass"}, result["effects"]
     assert any({"tension_offset", "link_mass"} <= s for s in _explanations(result)) or \
@@ -70,6 +73,14 @@ def test_elbow_offset_with_another_routing_is_either_offset_or_mass(tmp_path, el
     (value,) = offset["parameters"].values()
     assert value["offset_N"] > 0 and value["se"] > 0  # a fit with its uncertainty
     assert all(o["delta_bic"] > 0 for o in either)    # each explains the mismatch alone
+    design = tmp_path / "design.csv"
+    design.write_text(next(a["separating_poses"]["csv"] for a in result["ambiguous"]))
+    real2, ref2 = _pair(tmp_path, elbow, 30, [OFFSET, "routing:0.002,seed=3"], seed=4,
+                        poses=read_pose_plan(design, elbow), tag="2")
+    both, _ = diagnose([real, real2], [ref, ref2])
+    assert not {e["name"] for e in both["effects"]} & {"tension_offset", "link_mass"}, \
+        both["effects"]
+    assert both["ambiguous"] or both["unexplained"]
 
 
 def test_clean_elbow_names_nothing_and_is_sure_of_it(tmp_path, elbow):

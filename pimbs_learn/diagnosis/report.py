@@ -222,8 +222,9 @@ def ambiguity_text(result: dict) -> list[str]:
             held = b["heldout_likelihood_ratio_of_first_given_this"]
             lines.append(f"  beside {o['name']}, {first['name']} adds a likelihood ratio of "
                          f"{b['likelihood_ratio_of_first_given_this']:.0f}"
-                         + ("" if held is None else f" ({held:.0f} on held-out rows)")
-                         + f" (naming needs {chi2.isf(P_VALUE, first['df']):.0f} in both)")
+                         + ("" if held is None else f", {held:.0f} on held-out rows")
+                         + f"; naming needs {chi2.isf(P_VALUE, first['df']):.0f}"
+                         + ("" if held is None else " in both"))
         poses = amb.get("separating_poses")
         if poses:
             lines.append(f"  {len(poses['poses'])} poses that would tell them apart "
@@ -265,8 +266,10 @@ def text_report(result: dict) -> str:
     lines.append("")
     unsure = bool(result.get("ambiguous") or result.get("unexplained"))
     if not result["effects"] and unsure:
-        lines.append("No effect identified: below, the explanations this recording cannot "
-                     "tell apart and what no effect explains.")
+        parts = (["the explanations this recording cannot tell apart"]
+                 * bool(result.get("ambiguous"))
+                 + ["what no effect explains"] * bool(result.get("unexplained")))
+        lines.append(f"No effect identified; below, {' and '.join(parts)}.")
     elif not result["effects"]:
         lines.append("No significant missing physics: no candidate passed the "
                      "likelihood-ratio, BIC and cross-validation tests (see below whether "
