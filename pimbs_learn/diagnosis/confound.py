@@ -15,9 +15,9 @@ same loadcell) — refit B in A's place. B is a rival if it explains the mismatc
 (its likelihood-ratio test against the model without A passes, p < ``P_VALUE`` and
 ΔBIC > 0). A survives B only if what A adds *beside* B passes what naming asks of any
 effect, in-sample and held out: the likelihood ratio of (A + B) against B at
-p < ``P_VALUE`` with ΔBIC > 0, and, on five-fold held-out rows, a drop of the whitened
-squared residual of at least ``MIN_CV_GAIN`` whose sum over rows and channels — the
-held-out likelihood ratio — passes the same χ² threshold. That is the backward check the
+p < ``P_VALUE`` with ΔBIC > 0, and, on five-fold held-out rows, the drop of the whitened
+squared residual summed over rows and channels — the held-out likelihood ratio — past the
+same χ² threshold. That is the backward check the
 selection applies to effects it has named, applied to the explanations it did not pick.
 An A with rivals is reported as "either A or B …", never named alone.
 
@@ -49,7 +49,7 @@ from pimbs_learn.diagnosis.model import (
     evaluate,
     units_of,
 )
-from pimbs_learn.diagnosis.select import MIN_CV_GAIN, P_VALUE, Candidate, screen
+from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
 
 PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
               "elastic_stiffness")
@@ -105,9 +105,12 @@ class Heldout:
 
     @property
     def confirmed(self) -> bool:
-        """Better on rows the fit never saw, by as much as the naming test asks in-sample:
-        a held-out likelihood ratio past the same χ² threshold, and the selection's 1 %."""
-        return self.gain >= MIN_CV_GAIN and self.lr >= chi2.isf(P_VALUE, self.df)
+        """Better on rows the fit never saw by as much as the naming test asks in-sample: a
+        held-out likelihood ratio past the same χ² threshold. (Not also the selection's 1 %
+        held-out gain: measured against a rival that already explains most of the mismatch,
+        1 % of a 400-row, 15-channel recording is a ratio of about 60 — the 5-DOF arm's 4 N
+        offset beside a drift had 83 held out and failed only that.)"""
+        return self.lr >= chi2.isf(P_VALUE, self.df)
 
 
 def heldout(physics: Physics, data: Samples, smaller: Fit, larger: Fit) -> Heldout:

@@ -125,7 +125,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "effects": entries,
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, residual, location,
-                                   [disputed_entry(v, [s for s in sources]) for v in disputed]),
+                                   [disputed_entry(v, sources) for v in disputed]),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
