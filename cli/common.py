@@ -168,3 +168,13 @@ def _clock(seconds: float) -> str:
     if s >= 3600:
         return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
     return f"{s // 60}:{s % 60:02d}"
+
+
+def rows_as_samples(samples: int, rows: int, poses_file: Path) -> int:
+    """A poses file sets the sample count (one per row); ``--samples`` given beside it must
+    agree."""
+    source = click.get_current_context().get_parameter_source("samples")
+    if source == click.core.ParameterSource.COMMANDLINE and samples != rows:
+        raise click.UsageError(f"--samples {samples} but {poses_file} holds {rows} poses; "
+                               "leave --samples out (one sample per row)")
+    return rows

@@ -12,6 +12,7 @@ from pimbs_cli.common import (
     load_usable_arm,
     progress,
     robot_option,
+    rows_as_samples,
     user_errors,
 )
 
@@ -33,10 +34,15 @@ from pimbs_cli.common import (
                    "stiffness, encoder_offset")
 @click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="sensor noise scale (0: exact data)")
+@click.option("--poses-file", type=click.Path(dir_okay=False, path_type=Path),
+              help="simulate these poses instead of the seeded draws (CSV: a column per "
+                   "joint, optionally floor_<muscle> columns, as `pimbs diagnose --poses-out` "
+                   "writes); one sample per row")
 @force_option()
 @user_errors
 def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
-            conceal: tuple[str, ...], noise: float, force: bool) -> None:
+            conceal: tuple[str, ...], noise: float, poses_file: Path | None,
+            force: bool) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
     from pimbs_arm.poses import replaced_note
     from pimbs_recording.format import RecordingWriteError, write_recording
@@ -46,9 +52,17 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
     check_output(out, force=force, what="recording")
     arm = load_usable_arm(robot)  # the checks `collect` runs too
     effects = tuple(parse_effect(spec, seed=seed) for spec in conceal)
+    plan = None
+    if poses_file is not None:
+        from pimbs_arm.poses_file import read_pose_plan
+
+        plan = read_pose_plan(poses_file, arm, seed, map_kind)
+        samples = rows_as_samples(samples, len(plan.poses), poses_file)
     with progress("simulate", samples, "samples") as update:
         data, meta = simulate(arm, samples, map_kind, seed=seed, effects=effects,
-                              noise=noise, progress=update)
+                              noise=noise, progress=update, poses=plan)
+    if poses_file is not None:
+        meta["poses_file"] = str(poses_file)
     try:
         write_recording(out, data, meta)
     except RecordingWriteError as exc:  # the message names the file; simulate has no resume
