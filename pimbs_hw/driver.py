@@ -52,8 +52,8 @@ from pimbs_hw.transport.base import Frame, Transport
 _MODES = {"length": "length", "position": "length", "tension": "tension", "relax": "relax"}
 _NEEDED = ("position_m", "tension_n")  # a muscle's reading is fresh when both are new
 _JUDGED = 8  # frames a loss ratio must rest on before it can stop the arm
-# A silence this many times the limit is a board's, however long this host waited for a CPU
-# meanwhile: a starved host delays the verdict, it never cancels it.
+# A silence this many times the limit is a board's, however long this program stalled
+# meanwhile: a stalled host delays the verdict, it never cancels it.
 SILENT_WHATEVER_THE_LOAD = 10.0
 
 

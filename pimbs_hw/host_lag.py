@@ -12,11 +12,11 @@ that sleeps ``period_s`` again and again and adds up how much later than asked i
 simulated boards' loop and the driver's reads, so its lateness is theirs: on an idle machine a
 CPU-bound thread beside it (a plan being computed) costs it a few milliseconds, as the GIL
 changes hands every 5 ms; a starved process, or a thread descheduled while it holds the GIL
-(on a loaded machine), costs it, and them, the whole stall. ``starved(t0, t1)`` is the stalled part of
-``[t0, t1]``; ``total(now)`` the running sum, for a clock that stands still while the process
-cannot run (the simulated boards', ``pimbs_hw.mock.arm``). A stall still in progress (the
-probe overdue) counts as far as it has gone. One probe serves the whole process
-(``host_lag()``); it needs nothing from the operating system, so it works everywhere.
+(on a loaded machine), costs it, and them, the whole stall. ``starved(t0, t1)`` is the
+stalled part of ``[t0, t1]``; ``total(now)`` the running sum, for a clock that stands still
+while the process cannot run (the simulated boards', ``pimbs_hw.mock.arm``). A stall still
+in progress (the probe overdue) counts as far as it has gone. One probe serves the whole
+process (``host_lag()``); it needs nothing from the operating system, so it works anywhere.
 """
 
 from __future__ import annotations

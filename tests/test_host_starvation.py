@@ -134,3 +134,75 @@ def test_one_probe_serves_the_process():
         assert driver.host_lag is mock.host_lag is host_lag()
     names = [t.name for t in threading.enumerate()]
     assert names.count("pimbs-host-lag") == 1
+
+
+class _FullBuffer:
+    """A byte stream whose write blocks out its timeout, as a full USB-serial buffer does;
+    ``stall`` says whether this program could run meanwhile."""
+
+    def __init__(self, stall: bool) -> None:
+        self.stall = stall
+
+    def read(self, n: int) -> bytes:
+        time.sleep(0.02)
+        return b""
+
+    def write(self, data: bytes) -> int:
+        import serial
+
+        if self.stall:
+            with stalled(0.6):
+                pass
+        else:
+            time.sleep(0.6)
+        raise serial.SerialTimeoutException("Write timeout")
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("stall", [True, False])
+def test_a_write_that_times_out_while_the_host_stalled_is_no_lost_link(stall):
+    from pimbs_hw.safety import LinkLost
+    from pimbs_hw.transport import SerialTransport
+
+    transport = SerialTransport(_FullBuffer(stall), name="test")
+    try:
+        if stall:  # the frame is lost; the link is not
+            transport.send(0x101, b"\x01")
+            transport.check()
+        else:
+            with pytest.raises(LinkLost, match="serial write failed: Write timeout"):
+                transport.send(0x101, b"\x01")
+    finally:
+        transport.close()
+
+
+@pytest.mark.parametrize("stall", [True, False])
+def test_a_can_send_that_times_out_while_the_host_stalled_is_no_lost_link(stall, monkeypatch):
+    import can
+
+    from pimbs_hw.safety import LinkLost
+    from pimbs_hw.transport import CanTransport
+    from pimbs_hw.transport.canbus import SEND_TIMEOUT_S
+
+    transport = CanTransport(f"virtual:stall-{stall}-{time.monotonic_ns()}")
+
+    def send(msg, timeout=None):
+        if stall:
+            with stalled(SEND_TIMEOUT_S + 0.1):
+                pass
+        else:
+            time.sleep(SEND_TIMEOUT_S + 0.1)
+        raise can.CanOperationError("Transmit buffer full")
+
+    monkeypatch.setattr(transport.bus, "send", send)
+    try:
+        if stall:
+            transport.send(0x101, b"\x01")
+            transport.check()
+        else:
+            with pytest.raises(LinkLost, match="CAN send failed"):
+                transport.send(0x101, b"\x01")
+    finally:
+        transport.close()

@@ -18,6 +18,7 @@ from typing import Protocol
 import serial
 
 from pimbs_hw.errors import PortError
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.protocol.framing import FrameDecoder, pack_frame
 from pimbs_hw.safety import LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
@@ -122,10 +123,21 @@ class SerialTransport(QueuedTransport):
         return LinkLost("serial reader thread is not running", port=self.port)
 
     def _write(self, frame: bytes) -> None:
+        """Write one frame; a buffer that stays full for WRITE_TIMEOUT_S is a lost link,
+        unless this program could not run for most of that time (``HostLag``): then whoever
+        reads the other end (simulated boards in this process, or this process's own reader)
+        could not drain it either. That frame is lost (a board drops a torn one by its CRC)
+        and the next cycle's command goes out as usual."""
         self.check()
+        start = time.monotonic()
         try:
             with self._write_lock:
                 self.stream.write(frame)
+        except serial.SerialTimeoutException as exc:
+            end = time.monotonic()
+            if host_lag().starved(start, end) < 0.5 * (end - start):
+                self._fail(LinkLost(f"serial write failed: {exc}", port=self.port))
+                raise self._fault from exc  # type: ignore[misc]
         except (serial.SerialException, OSError) as exc:
             self._fail(LinkLost(f"serial write failed: {exc}", port=self.port))
             raise self._fault from exc  # type: ignore[misc]
