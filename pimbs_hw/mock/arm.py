@@ -7,7 +7,9 @@ adapter on a pty (``link="slcan"``; ``mock.port`` is ``slcan:/dev/pts/N`` for py
 Behind the boards is ``Plant``: the arm model's static equilibrium with first-order
 settling (or, with ``plant=arm.xml``, ``MujocoPlant``: MuJoCo's dynamics), noisy sensors,
 load heating, an optional concealed effect (``effects.py``) and
-injected faults (``faults.py``).
+injected faults (``faults.py``). The boards and the plant run on a clock that stands still
+while this process cannot run (``MockArm._clock``), so a loaded machine slows the simulated
+arm down instead of tripping its boards' watchdogs.
 
     with MockArm(robot, "virtual:demo", speed=10, faults=["overheat:m1@3"]) as mock:
         ...  # ArmDriver(CanTransport(mock.port), robot)

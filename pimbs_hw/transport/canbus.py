@@ -122,8 +122,9 @@ class CanTransport(QueuedTransport):
     """Frames over python-can, received by a ``can.Notifier`` thread."""
 
     def __init__(self, port: str, *, corrupt_per_s: int = 3, hint: str = _HINT,
-                 **bus_kwargs: Any) -> None:
+                 send_timeout_s: float = SEND_TIMEOUT_S, **bus_kwargs: Any) -> None:
         super().__init__(port or "default", corrupt_per_s)
+        self.send_timeout_s = send_timeout_s
         kwargs = {**parse_can_port(port), **bus_kwargs}
         with _python_can_warnings() as logged:
             try:
@@ -157,10 +158,10 @@ class CanTransport(QueuedTransport):
         self.check()
         start = time.monotonic()
         try:
-            self.bus.send(msg, timeout=SEND_TIMEOUT_S)
+            self.bus.send(msg, timeout=self.send_timeout_s)
         except can.CanError as exc:
             end = time.monotonic()
-            if end - start < 0.9 * SEND_TIMEOUT_S or host_lag().starved(start, end) < 0.5 * (
+            if end - start < 0.9 * self.send_timeout_s or host_lag().starved(start, end) < 0.5 * (
                     end - start):
                 self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
                 raise self._fault from exc  # type: ignore[misc]

@@ -74,10 +74,10 @@ class PtyMaster:
                 pass
 
 
-def _open_serial(port: str, baudrate: int) -> serial.SerialBase:
+def _open_serial(port: str, baudrate: int, write_timeout_s: float) -> serial.SerialBase:
     try:
         stream = serial.serial_for_url(port, baudrate=baudrate, timeout=READ_TIMEOUT_S,
-                                       write_timeout=WRITE_TIMEOUT_S)
+                                       write_timeout=write_timeout_s)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PortError(port, f"cannot open serial port {port!r} ({exc}): is the board plugged "
                               "in (`ls /dev/ttyUSB* /dev/ttyACM*`) and are you in the dialout "
@@ -90,10 +90,12 @@ class SerialTransport(QueuedTransport):
     """Frames over a byte stream, received by a reader thread."""
 
     def __init__(self, port: str | ByteStream, *, baudrate: int = 1_000_000,
-                 corrupt_per_s: int = 3, name: str | None = None) -> None:
+                 corrupt_per_s: int = 3, name: str | None = None,
+                 send_timeout_s: float = WRITE_TIMEOUT_S) -> None:
         label = name or (port if isinstance(port, str) else repr(port))
         super().__init__(label, corrupt_per_s)
-        self.stream: ByteStream = _open_serial(port, baudrate) if isinstance(port, str) else port
+        self.stream: ByteStream = (_open_serial(port, baudrate, send_timeout_s)
+                                   if isinstance(port, str) else port)
         self._decoder = FrameDecoder()
         self._write_lock = threading.Lock()
         self._thread = threading.Thread(target=self._reader, name=f"serial-rx {label}",
@@ -123,7 +125,7 @@ class SerialTransport(QueuedTransport):
         return LinkLost("serial reader thread is not running", port=self.port)
 
     def _write(self, frame: bytes) -> None:
-        """Write one frame; a buffer that stays full for WRITE_TIMEOUT_S is a lost link,
+        """Write one frame; a buffer that stays full for the write timeout is a lost link,
         unless this program could not run for most of that time (``HostLag``): then whoever
         reads the other end (simulated boards in this process, or this process's own reader)
         could not drain it either. That frame is lost (a board drops a torn one by its CRC)
