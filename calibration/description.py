@@ -91,6 +91,19 @@ class NotAMuscleFileError(DescriptionError):
         ValueError.__init__(self, not_a_muscle_file(self.path, kind))
 
 
+class RobotNotFoundError(DescriptionError):
+    """A robot named by the caller (a command's ``--robot``) that is no built-in robot and
+    no file: nothing inside a description is wrong, so no field is named."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path, self.field = Path(path), "<file>"
+        where = ("" if self.path.is_absolute() else
+                 f" (a relative path starts from the current directory, {Path.cwd()})")
+        ValueError.__init__(
+            self, f"{self.path}: no such built-in robot or muscle file{where}. Use one of "
+            f"{', '.join(_BUILTIN)}, a path to a *{MUSCLE_SUFFIX} file or an MJCF *.xml")
+
+
 class _ArrayFieldsEq:
     """Value equality for frozen dataclasses holding numpy arrays (which dataclass ``==``
     cannot compare); the arrays are made read-only so the instances really are frozen."""
@@ -183,11 +196,7 @@ def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
             return _load_file(Path(path))
     path = Path(text)
     if not path.is_file():
-        raise DescriptionError(
-            path, "robot", "no such built-in robot or muscle file",
-            f"Use one of {', '.join(_BUILTIN)}, a path to a *{MUSCLE_SUFFIX} file or an MJCF "
-            "*.xml",
-        )
+        raise RobotNotFoundError(path)
     if path.suffix.lower() == ".xml":
         from pimbs_calibration.mjcf import is_mjcf
 

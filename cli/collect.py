@@ -60,7 +60,9 @@ def _stop_on_signals() -> Iterator[None]:
               help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, "
                    "slcan:/dev/ttyACM0, /dev/ttyUSB0 (serial), or virtual (slcan-pty: through "
                    "an emulated SLCAN adapter) for the simulated arm")
-@click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True)
+@click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True,
+              help="poses in the recording (the paper's real arm: 496); --resume continues "
+                   "towards the same number")
 @robot_option()
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
               help="recording to write [default: collection-ROBOT-UTCTIME.parquet]")

@@ -37,9 +37,20 @@ def user_errors(func: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def _known_robot(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """A --robot that is neither a built-in robot nor a file is the option's error, named as
+    such (not a field of some description)."""
+    from pimbs_calibration.description import RobotNotFoundError, builtin_robots
+
+    if value is None or value in builtin_robots() or Path(value).is_file():
+        return value
+    raise click.BadParameter(str(RobotNotFoundError(value)), ctx=ctx, param=param)
+
+
 def robot_option(default: str | None = "two-link-4-muscle") -> Callable[[F], F]:
     """`--robot NAME|PATH`: a built-in robot name, a `.muscles.yaml` or an MJCF `.xml`."""
     return click.option("--robot", default=default, show_default=default is not None,
+                        callback=_known_robot,
                         help="built-in robot name (two-link-4-muscle, left-arm-5dof), path "
                              "to a .muscles.yaml robot description, or an MJCF .xml")
 
@@ -126,6 +137,9 @@ def progress(label: str, total: int | None, unit: str, *, console: Any = None,
     """``update(done, extra="")`` for a long loop: a transient rich bar on a terminal,
     :class:`LogProgress` lines otherwise (and a last line however the loop ends).
 
+    A run that fails before anything was done prints no progress line: its error is the
+    one line to read.
+
     ``console`` is the rich console the command prints through (stderr by default); it
     decides what counts as a terminal, so ``FORCE_TERMINAL``/``NO_COLOR`` are honoured.
     """
@@ -155,8 +169,11 @@ def progress(label: str, total: int | None, unit: str, *, console: Any = None,
 
     try:
         yield line
-    finally:
-        log.update(last[0], last[1], final=True)
+    except BaseException:
+        if last[0]:  # how far a failed run got; nothing for one that failed before starting
+            log.update(last[0], last[1], final=True)
+        raise
+    log.update(last[0], last[1], final=True)
 
 
 def _rate(rate: float) -> str:

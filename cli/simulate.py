@@ -19,12 +19,16 @@ from pimbs_cli.common import (
 
 @click.command("simulate")
 @robot_option()
-@click.option("--samples", "-n", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--samples", "-n", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="poses (rows) to simulate")
 @click.option("--map", "map_kind", type=click.Choice(["al", "atl"]), default="atl",
               show_default=True, help="al: f_min = 0; atl: f_min uniform in [10, 300] N "
                                    "(at most 3/4 of the weakest muscle's f_max)")
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="pose sequence, floors and noise; the same seed gives the poses of "
+                   "`pimbs collect --seed`")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="recording to write (Parquet)")
 @click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
               help="write a 'real' recording with this effect present but unlabelled: "
                    "tendon_friction, link_mass, tension_offset, tension_gain, thermal_drift, "

@@ -35,6 +35,19 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
 
 
+def _directions(d: np.ndarray, seg_len: np.ndarray) -> np.ndarray:
+    """(S, 3) unit vectors along the segments ``d`` (S, 3) of lengths ``seg_len``.
+
+    Two via points on different links can meet (a wire through its joint's axis: in the
+    ACME fixture the elbow flexor's near an elbow angle of -1.08 rad, inside the URDF's
+    limits, which the equilibrium solver may explore). There the segment has length 0 and
+    no direction: its length is not differentiable, and the middle of its one-sided
+    derivatives, 0, is used (direction 0, no curvature) instead of dividing 0 by 0, which
+    would turn the muscle's Jacobian and the solver's Hessian into NaN.
+    """
+    return np.divide(d, seg_len[:, None], out=np.zeros_like(d), where=seg_len[:, None] > 0)
+
+
 class ViaPointBackend:
     """Pinocchio model of a URDF description with via-point muscles."""
 
@@ -150,7 +163,7 @@ class ViaPointBackend:
             p = self._world_points()
         d = p[self._seg_b] - p[self._seg_a]
         seg_len = np.sqrt(np.einsum("si,si->s", d, d))
-        paths = _Paths(seg_len=seg_len, u=d / seg_len[:, None])
+        paths = _Paths(seg_len=seg_len, u=_directions(d, seg_len))
         if jacobian:
             pe = p[self._end_points]
             paths.omega = J[3:]
@@ -228,7 +241,9 @@ class ViaPointBackend:
         udv = np.einsum("si,sin->sn", u, dv)
         w = weight[self._seg_owner[self._moving]]
         curv = np.einsum("sin,sim->snm", dv, dv) - udv[:, :, None] * udv[:, None, :]
-        H = np.einsum("s,snm->nm", w / seg_len, curv)
+        # a segment of zero length has no curvature to add (see ``_directions``)
+        bend = np.divide(w, seg_len, out=np.zeros_like(seg_len), where=seg_len > 0)
+        H = np.einsum("s,snm->nm", bend, curv)
         # d2p[e, :, k, l] = omega_inner x J_outer, zero unless both joints move the point.
         d2p = _cross(paths.omega[:, self._pair_inner][None], paths.jp[:, :, self._pair_outer])
         moves = self._via_moves[self._end_points]

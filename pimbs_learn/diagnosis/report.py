@@ -278,7 +278,9 @@ def text_report(result: dict) -> str:
         lines.append("Missing physics, most significant first:")
         for i, e in enumerate(result["effects"], 1):
             ev = e["evidence"]
-            who = ", ".join(e["muscles"] + e["joints"])
+            # the units its parameters belong to: muscles, or joints for a joint offset or a
+            # link mass (the JSON's "joints" of a muscle effect are the joints it loads)
+            who = ", ".join(e["muscles"] or e["joints"])
             lines.append(f"  {i}. {e['name']} ({who})  ΔBIC {ev['delta_bic']:.0f}, "
                          f"p {ev['p_value']:.1e}, held-out gain {100 * ev['cv_gain']:.0f} %")
             lines += _parameter_lines(e["parameters"])
