@@ -87,6 +87,7 @@ def make_one(seed: int, out: Path, samples: int) -> dict[str, Any]:
         skipped = stats.skipped
         line["plant_stats"] = stats.to_json()
     meta["created"] = "2026-01-01T00:00:00Z"  # fixed: the same seed writes the same bytes
+    meta["generator"] = "pimbs population"
     write_recording(recording, data, meta)
     ref_data, ref_meta = simulate(arm, samples, MAP, seed=seed)
     ref_meta["created"] = meta["created"]
@@ -182,6 +183,12 @@ def main() -> None:
         by.setdefault((d["split"], d["family"], d["simulator"]), []).append(d["arm"])
     print("layout: " + "; ".join(f"{k[0]} {k[1]} on {k[2]}: {len(v)}"
                                  for k, v in sorted(by.items())))
+    shapes: dict[tuple, dict[str, int]] = {}
+    for s in seeds:
+        d = lines[arm_name(s)]
+        shapes.setdefault((d["dof"], d["n_muscles"]), {"dev": 0, "judge": 0})[d["split"]] += 1
+    print("shapes (joints, muscles): " + "; ".join(
+        f"{k[0]}x{k[1]}: {v['dev']} dev + {v['judge']} judge" for k, v in sorted(shapes.items())))
     print(f"made {len(made)} arms in {wall:.0f} s wall ({cpu:.0f} s of work, "
           f"{a.jobs} job(s)); {a.arms - len(made)} cached; manifest {out / 'manifest.jsonl'}")
 

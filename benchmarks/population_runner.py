@@ -176,14 +176,29 @@ def run(a: argparse.Namespace) -> None:
     options = TrainOptions(epochs=a.epochs, hidden=a.hidden, device=a.device, lr=a.lr)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    for i, batch in enumerate(todo):
-        lines = train_batch(batch, samples, options, a.max_eval)
+
+    def write(i: int, batch: list[Job], lines: list[dict[str, Any]]) -> None:
         with a.out.open("a") as fh:
             fh.write("".join(json.dumps(line) + "\n" for line in lines))
         first = batch[0]
         print(f"batch {i + 1}/{len(todo)}: {len(batch)} runs, {first.arm['dof']} joints "
               f"{first.arm['n_muscles']} muscles N={first.n} {first.method.structure} "
               f"~{first.method.schedule}: {lines[0]['batch_seconds']:.1f} s", flush=True)
+
+    if a.jobs <= 1:
+        for i, batch in enumerate(todo):
+            write(i, batch, train_batch(batch, samples, options, a.max_eval))
+    else:  # one process per core, each training whole batches on its own thread(s)
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(a.jobs, initializer=torch.set_num_threads,
+                                 initargs=(a.threads,)) as pool:
+            futures = {pool.submit(train_batch, batch, {j.arm["arm"]: samples[j.arm["arm"]]
+                                                        for j in batch}, options,
+                                   a.max_eval): i for i, batch in enumerate(todo)}
+            for future in as_completed(futures):
+                i = futures[future]
+                write(i, todo[i], future.result())
     print(f"trained {len(jobs)} runs in {time.perf_counter() - t0:.0f} s", flush=True)
 
 
@@ -234,7 +249,8 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=20000)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--device", default="cpu", help="cpu or cuda")
-    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads per process")
+    ap.add_argument("--jobs", type=int, default=1, help="processes training batches at once")
     ap.add_argument("--max-eval", type=int, default=200, help="evaluation rows per run")
     ap.add_argument("--max-batch", type=int, default=64, help="runs per stacked call")
     ap.add_argument("--out", type=Path, help="JSON lines, appended")

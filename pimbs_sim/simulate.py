@@ -9,7 +9,9 @@ the elastic stretch ``f = exp(KΔn) − 1``.
 
 Like a real collection, the recording also carries times, approach directions (the sign
 of each muscle's length change on the way from the previous pose), motor temperatures that
-rise with load (first-order thermal model) and sensor noise. With effects from
+rise with load (first-order thermal model) and sensor noise; a ``SensorModel``
+(:mod:`pimbs_sim.sensors`) adds loadcell and encoder latency and loadcell hysteresis, and sets
+the heating. With effects from
 :mod:`pimbs_sim.effects` the data obey the *true* arm while ``tau_gravity`` is still
 computed from the model, exactly as on hardware. Poses, f_min draws and noise come from
 separate seeded streams, so a concealed and a clean recording of one seed pair by

@@ -100,7 +100,7 @@ def test_population_runner_stacks_one_shape_and_resumes(tmp_path, capsys):
     args = argparse.Namespace(
         manifest=manifest, split="judge", arms=None, n=[5], seeds=2, seed0=0,
         methods=["se:basic+const~exp", "se:basic~exp"], hidden=16, epochs=40,
-        lr=1e-3, device="cpu", threads=1, max_eval=20, max_batch=64, out=out)
+        lr=1e-3, device="cpu", threads=1, jobs=1, max_eval=20, max_batch=64, out=out)
     runner.run(args)
     rows = [json.loads(t) for t in out.read_text().splitlines()]
     assert len(rows) == 2 * 2 * 2  # arms x seeds x methods, one batch
@@ -113,7 +113,7 @@ def test_population_runner_stacks_one_shape_and_resumes(tmp_path, capsys):
     runner.run(args)  # everything is there: nothing trains, nothing is appended
     assert "0 runs to train" in capsys.readouterr().out
     assert len(out.read_text().splitlines()) == len(rows)
-    args.n = [5, 8]  # a new N trains only what is new
+    args.n, args.jobs = [5, 8], 2  # a new N trains only what is new (here in a worker)
     runner.run(args)
     assert len(out.read_text().splitlines()) == 2 * len(rows)
     text = "\n".join(runner.summary(out, "se:basic~exp", "se:basic+const~exp"))
