@@ -151,3 +151,16 @@ def test_conditions_are_drawn_from_the_seed_and_stay_out_of_the_recording(arms):
     _, meta = simulate(spec.load(), 5, "atl", seed=spec.seed, effects=hidden.sim_effects(),
                        sensors=hidden.sensors, noise=hidden.noise)
     assert "offset" not in str(meta) and "20.0" not in str(meta)
+
+
+def test_the_layout_puts_every_family_and_simulator_in_both_halves():
+    from collections import Counter
+
+    from pimbs_sim.population import family_of, split_of
+
+    halves = Counter((split_of(s), *family_of(s)) for s in range(40))
+    for half in ("dev", "judge"):
+        assert halves[(half, "viapoint", "ours")] == 10
+        assert halves[(half, "mujoco", "ours")] == 5
+        assert halves[(half, "mujoco", "mujoco")] == 5
+    assert all(family_of(2 * k) == family_of(2 * k + 1) for k in range(20))
