@@ -4,7 +4,11 @@ For every arm of a split of a population (``benchmarks/population.py``) this dia
 user with the recording, its clean reference and the robot description would
 (``pimbs_learn.diagnosis.run.diagnose(real, reference, robot)``):
 
-* the arm's recording (its concealed truth: the manifest's ``truth``);
+* the arm's recording (its concealed truth: the manifest's ``truth``), against a clean
+  reference of the same poses with **its own sensor noise** (``OUT/twins``; the
+  population's reference files draw the same noise as the recording, scaled, which a
+  user's simulated reference never does and which hides noise-made false alarms behind
+  the reference check);
 * its **null twin**: the same arm, sensors, noise and seed with the concealed effects (and
   on MuJoCo the plant file's changes) removed, written into ``OUT/twins`` — the population
   alone holds too few recordings without effects to measure false alarms;
@@ -66,13 +70,14 @@ sys.path.insert(0, str(ROOT))
 
 from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 
-# The split, fixed before any diagnosis ran: even seeds develop; odd seeds 41-79 judge
-# (odd seeds 1-39 are used for neither).
-SPLITS = {"dev": [s for s in range(0, 80) if s % 2 == 0],
+# The split, fixed before any diagnosis ran: even seeds 0-38 develop (the arms the learning
+# work develops on); odd seeds 41-79 judge (odd seeds 1-39 and even 40-78: neither).
+SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge": [s for s in range(41, 80) if s % 2 == 1]}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
+REFERENCE_NOISE = 10_000  # a reference's noise seed: its recording's seed + this
 VERSION = 1         # of what this script writes
 
 
@@ -160,6 +165,65 @@ def null_twin(line: dict[str, Any], pop: Path, twins: Path) -> Path:
     return path
 
 
+def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
+                 poses=None, stem: str | None = None) -> Path:
+    """The clean reference of the recording made at ``seed`` (of ``poses``, or of the seed's
+    plan): the description on PIMBS's simulator, the same poses, noise of its own."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
+
+    path = folder / f"{stem or line['arm']}.reference.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], line["sha256"]["description"],
+                                     seed, REFERENCE_NOISE]).encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    if poses is None and path.is_file() and stamp.is_file() and stamp.read_text() == key:
+        return path
+    folder.mkdir(parents=True, exist_ok=True)
+    arm = ArmModel.load(pop / line["description"])
+    n = line["samples"] if poses is None else len(poses.poses)
+    data, meta = simulate(arm, n, line["map"], seed=seed, noise_seed=seed + REFERENCE_NOISE,
+                          poses=poses)
+    meta["created"] = "2026-01-01T00:00:00Z"
+    write_recording(path, data, meta)
+    stamp.write_text(key)
+    return path
+
+
+PROBES = ("plant_tendon_friction", "plant_joint_friction", "plant_joint_stiffness", "routing")
+
+
+def probe(line: dict[str, Any], pop: Path, twins: Path) -> tuple[Path, Any, Path]:
+    """A development probe of the plant physics the population rarely draws: the arm's
+    sensors, noise and seed on MuJoCo, with one plant-file change and nothing else (which
+    one cycles with the seed; drawn from the stream ``[seed, 8]`` with the population's
+    ranges). Only for arms recorded on MuJoCo."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.conditions import Conditions, _draw_effect, write_plant
+
+    name = PROBES[(line["seed"] // 8) % len(PROBES)]
+    spec = SimpleNamespace(muscles=line["muscles"], joints=line["joints"], dof=line["dof"],
+                           params=line["params"])
+    effect = _draw_effect(name, spec, "mujoco", np.random.default_rng([line["seed"], 8]))
+    path = twins / f"{line['arm']}.probe.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], effect]).encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    twins.mkdir(parents=True, exist_ok=True)
+    plant = write_plant(description_mjcf(line, pop), (effect,),
+                        twins / f"{line['arm']}.probe.xml")
+    base = conditions(line["truth"], effects=False)
+    cond = Conditions("mujoco", base.sensors, base.noise, (effect,))
+    if not (path.is_file() and stamp.is_file() and stamp.read_text() == key):
+        data, meta = record(line, pop, cond, plant, line["seed"])
+        write_recording(path, data, meta)
+        stamp.write_text(key)
+    return path, cond, plant
+
+
 # --------------------------------------------------------------------------- scoring
 def answer(result: dict[str, Any]) -> dict[str, Any]:
     """What a diagnosis says, reduced to what is scored (and where, for the reader)."""
@@ -199,12 +263,18 @@ def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: 
 
     t_cpu, t_wall = time.process_time(), time.perf_counter()
     robot = pop / line["description"]
+    mujoco = line["simulator"] == "mujoco"
     if kind == "recording":
-        real, truth = pop / line["recording"], line["truth"]["effects"]
+        real, cond = pop / line["recording"], conditions(line["truth"])
+        plant = pop / line["plant"] if mujoco else None
+    elif kind == "probe":
+        real, cond, plant = probe(line, pop, twins)
     else:
-        real, truth = null_twin(line, pop, twins), []
+        real, cond = null_twin(line, pop, twins), conditions(line["truth"], effects=False)
+        plant = description_mjcf(line, pop) if mujoco else None
+    truth = list(cond.effects)
     t_made = time.process_time() - t_cpu
-    reference = pop / line["reference"]
+    reference = reference_of(line, pop, twins, line["seed"])
     c0 = time.process_time()
     result, _ = diagnose(real, reference, robot=robot)
     said = answer(result)
@@ -217,15 +287,17 @@ def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: 
         "outcome": outcome(said, want), "truth_in_either": truth_in_either(said, want),
         "cpu_s": round(time.process_time() - c0, 2)}
     if settle and said["either"]:
-        rec["settle"] = settle_one(line, pop, out, kind, result, real, reference, want)
+        rec["settle"] = settle_one(line, pop, out, kind, result, real, reference, want, cond,
+                                   plant)
     rec["cpu_s_total"] = round(time.process_time() - t_cpu, 2)
-    rec["cpu_s_twin"] = round(t_made, 2) if kind == "null" else 0.0
+    rec["cpu_s_twin"] = round(t_made, 2) if kind != "recording" else 0.0
     rec["wall_s"] = round(time.perf_counter() - t_wall, 2)
     return rec
 
 
 def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: dict,
-               real: Path, reference: Path, want: list[str]) -> dict[str, Any]:
+               real: Path, reference: Path, want: list[str], cond, plant: Path | None
+               ) -> dict[str, Any]:
     """Collect the proposed poses on the same arm (same concealed effects, sensors, plant)
     and diagnose the first and the new recording together, each with its reference."""
     from pimbs_arm.model import ArmModel
@@ -233,7 +305,6 @@ def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: di
     from pimbs_learn.diagnosis.design import design_csv
     from pimbs_learn.diagnosis.run import diagnose
     from pimbs_recording.format import write_recording
-    from pimbs_sim.simulate import simulate
 
     csv, count = design_csv(result)
     if not count:
@@ -246,18 +317,11 @@ def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: di
     arm = ArmModel.load(pop / line["description"])
     plan = read_pose_plan(design, arm)  # as `pimbs collect --poses-file` reads it
     seed = line["seed"] + SETTLE_SEED
-    effects = kind == "recording"
-    if line["simulator"] == "mujoco":
-        plant = pop / line["plant"] if effects else description_mjcf(line, pop)
-    else:
-        plant = None
     c0 = time.process_time()
-    data, meta = record(line, pop, conditions(line["truth"], effects), plant, seed, plan)
+    data, meta = record(line, pop, cond, plant, seed, plan)
     real2 = folder / f"{stem}.parquet"
     write_recording(real2, data, meta)
-    ref_data, ref_meta = simulate(arm, len(plan.poses), line["map"], seed=seed, poses=plan)
-    ref2 = folder / f"{stem}.reference.parquet"
-    write_recording(ref2, ref_data, ref_meta)
+    ref2 = reference_of(line, pop, folder, seed, plan, stem)
     c1 = time.process_time()
     both, _ = diagnose([real, real2], [reference, ref2], robot=pop / line["description"])
     said = answer(both)
@@ -275,8 +339,10 @@ ORDER_NULLS = ("nothing", "unexplained", "named")
 
 
 def summary(lines: list[dict[str, Any]]) -> str:
-    """Confusion tables per simulator (markdown)."""
+    """Confusion tables per simulator (markdown); the development probes apart."""
     out = []
+    probes = [r for r in lines if r["kind"] == "probe"]
+    lines = [r for r in lines if r["kind"] != "probe"]
     for sim in ("ours", "mujoco"):
         rows = [r for r in lines if r["simulator"] == sim]
         if not rows:
@@ -326,6 +392,16 @@ def summary(lines: list[dict[str, Any]]) -> str:
         out.append(f"CPU per diagnosis: median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s;"
                    f" per recording with twin and settling: "
                    f"{sum(r['cpu_s_total'] for r in rows) / len(rows):.1f} s on average")
+    if probes:
+        out.append("\n### Development probes: one plant-file change on MuJoCo\n")
+        out.append("| arm | concealed | counts as | named | either | outcome | settled |")
+        out.append("|---|---|---|---|---|---|---|")
+        for r in sorted(probes, key=lambda r: r["arm"]):
+            e = r["truth"][0]
+            out.append(f"| {r['arm']} | {e['name']} {e['magnitude']:g} | "
+                       f"{', '.join(r['targets']) or 'nuisance'} | {', '.join(r['named']) or '–'}"
+                       f" | {' / '.join(' or '.join(x) for x in r['either']) or '–'} | "
+                       f"{r['outcome']} | {r.get('settle', {}).get('outcome', '–')} |")
     return "\n".join(out)
 
 
@@ -337,7 +413,7 @@ def bars(lines: list[dict[str, Any]]) -> str:
     """The done bar, per simulator."""
     out = []
     for sim in ("ours", "mujoco"):
-        rows = [r for r in lines if r["simulator"] == sim]
+        rows = [r for r in lines if r["simulator"] == sim and r["kind"] != "probe"]
         eff = [r for r in rows if r["targets"]]
         nul = [r for r in rows if not r["targets"]]
         conf = [r for r in rows if r.get("settle")]
@@ -365,11 +441,14 @@ def main() -> None:
     ap.add_argument("--population", type=Path, help="folder with manifest.jsonl")
     ap.add_argument("--split", choices=sorted(SPLITS))
     ap.add_argument("--out", type=Path, help="folder for twins, settling sessions, results")
-    ap.add_argument("--twins", type=Path, help="folder of the null twins (default OUT/twins; "
-                    "they depend on the population only, so passes may share them)")
+    ap.add_argument("--twins", type=Path, help="folder of the null twins and references "
+                    "(default OUT/twins; they depend on the population only, so passes may "
+                    "share them)")
     ap.add_argument("--arms", nargs="*", help="only these arms (armNNN) of the split")
     ap.add_argument("--kinds", nargs="*", default=["recording", "null"],
-                    choices=["recording", "null"])
+                    choices=["recording", "null", "probe"],
+                    help="probe: on the development split's MuJoCo arms, one plant-file "
+                    "change alone (the population rarely draws them)")
     ap.add_argument("--no-settle", action="store_true", help="skip the separating poses")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--summary", type=Path, help="print the tables of a results file")
@@ -381,6 +460,8 @@ def main() -> None:
         return
     if not (a.population and a.split and a.out):
         ap.error("--population, --split and --out are needed (or --summary FILE)")
+    if "probe" in a.kinds and a.split != "dev":
+        ap.error("--kinds probe is for the development split only (--split dev)")
     pop, out = a.population.resolve(), a.out.resolve()
     twins = (a.twins or out / "twins").resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -391,7 +472,10 @@ def main() -> None:
         arms = [d for d in arms if d["arm"] in set(a.arms)]
     done = {(r["arm"], r["kind"]) for r in read_lines(results)}
     todo = [(d, k) for d in arms for k in a.kinds
-            if (d["arm"], k) not in done and (k == "recording" or d["truth"]["effects"])]
+            if (d["arm"], k) not in done and (k == "recording" or (
+                k == "null" and d["truth"]["effects"]) or (
+                k == "probe" and d["simulator"] == "mujoco"))]
+    todo.sort(key=lambda t: t[0]["simulator"] != "mujoco")  # the slow ones first
     print(f"{len(arms)} arms of the {a.split} split; {len(todo)} recordings to diagnose, "
           f"{len(done)} already in {results}", flush=True)
     t0 = time.perf_counter()
