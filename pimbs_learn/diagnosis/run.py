@@ -174,7 +174,9 @@ def write_corrected(internals: dict, path: str | Path) -> None:
     """The real recording with the named effects undone: true tensions, angles, gravity.
 
     Only effects the recording identifies are undone: of two explanations it cannot tell
-    apart, correcting either would be a guess.
+    apart, correcting either would be a guess. The sensors' lag and hysteresis, fitted
+    beside every model (``model.sensor_units``), are undone too: they are how the boards
+    read, not an explanation that competes with another.
 
     Rows are those paired with the reference; extra columns and metadata are kept, and the
     metadata says what was corrected, so training on it is traceable.
