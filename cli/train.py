@@ -51,9 +51,9 @@ JOINT_ANGLE_ROWS = 64
 @click.option("--hidden", type=click.IntRange(min=1), default=1000, show_default=True,
               help="width of the two hidden layers (the paper's 1000)")
 @click.option("--self-check/--no-self-check", "check", default=True, show_default=True,
-              help="before training, compare the physics terms against none on 5 folds of "
-                   "the training rows, and train without them where they did not predict "
-                   "the left-out rows better (costs about one more training run)")
+              help="train without the physics terms where the training rows do not show "
+                   "that the recorded torques help predict lengths at poses left out "
+                   "(each sample predicted from the others, with and without torques)")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
                    "--lr-schedule constant --hidden 1000 --no-self-check (options given "
@@ -143,8 +143,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     if out is None:
         console.print("note: no --out, so the model will not be saved (only the metrics "
                       "are printed); stop now and add --out DIR to keep it", markup=False)
-    with progress("training", epochs * (2 if checked else 1), "epochs",
-                  console=console) as update:
+    with progress("training", epochs, "epochs", console=console) as update:
         result = trainer(run, options, progress=update)
     if result.self_check is not None:
         console.print(result.self_check.line(run.loss.name), markup=False)
