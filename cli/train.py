@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from pimbs_cli.common import check_output, force_option, progress, user_errors
+from pimbs_learn.widths import DEFAULT_HIDDEN, HIDDEN
 
 LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
 DEFAULT_LOSS = "basic+const+pinn"
@@ -48,8 +49,8 @@ JOINT_ANGLE_ROWS = 64
 @click.option("--lr-schedule", "schedule", type=click.Choice(["exp", "constant", "cosine"]),
               default="exp", show_default=True,
               help="exp: lr decays to 1 %% of --lr over the run; constant: the paper's Adam")
-@click.option("--hidden", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="width of the two hidden layers (the paper's 1000)")
+@click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
+              help="width of the two hidden layers (the paper's: 1000)")
 @click.option("--self-check/--no-self-check", "check", default=True, show_default=True,
               help="train without the physics terms where the training rows do not show "
                    "that the recorded torques help predict lengths at poses left out "
@@ -94,7 +95,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         given = {name for name in ctx.params
                  if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT}
         paper_values = {"structure": "mlp", "prior": False, "alpha": DEFAULT_PAPER_ALPHA,
-                        "schedule": "constant", "hidden": 1000, "check": False}
+                        "schedule": "constant", "hidden": HIDDEN, "check": False}
         values = {k: v for k, v in paper_values.items() if k not in given}
         structure = values.get("structure", structure)
         prior = values.get("prior", prior)
