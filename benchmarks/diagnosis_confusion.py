@@ -3,8 +3,10 @@
 For each robot, effect, magnitude and seed: simulate a clean reference and a "real"
 recording of the same poses in which the effect is concealed together with a random
 muscle-routing difference (a real arm never matches its model's routing), diagnose, and
-tally the top named effect ("none" if nothing is named). Prints Markdown tables for the
-README and writes every case to JSON.
+tally the top named effect ("none" if nothing is named; "either" if nothing is named but
+explanations the recording cannot tell apart are reported: counted in their own column,
+neither right nor wrong, with how often the truth is among them; "unexplained" answers
+likewise). Prints Markdown tables for the README and writes every case to JSON.
 
 ``--sets multi`` conceals several effects at once instead — gain errors alone, pairs and
 triples (``COMBOS``) — and scores each case as a set: every concealed effect named and
@@ -111,8 +113,11 @@ def run_case(arm, effect, magnitude, seed, n, routing, workdir: Path,
     result, _ = diagnose(paths["real"], paths["sim"])
     seconds = time.perf_counter() - t0
     named = [e["name"] for e in result["effects"]]
+    either = [sorted({o["name"] for o in a["either"]}) for a in result.get("ambiguous", [])]
+    unexplained = [u["why"] for u in result.get("unexplained", [])]
     return {"robot": arm.robot.name, "effect": effect, "magnitude": magnitude, "seed": seed,
-            "concealed": specs, "named": named, "top": named[0] if named else "none",
+            "concealed": specs, "named": named, "top": top_answer(named, either),
+            "either": either, "unexplained": unexplained,
             "fit_before": result["fit"]["before"], "fit_after": result["fit"]["after"],
             "parameters": result["effects"][0]["parameters"] if named else {},
             "where": {e["name"]: e["muscles"] + (e["joints"] if e["name"] == "joint_offset"
@@ -121,14 +126,27 @@ def run_case(arm, effect, magnitude, seed, n, routing, workdir: Path,
             "seconds": seconds}
 
 
+def top_answer(named: list[str], either: list[list[str]]) -> str:
+    """The first answer: a named effect, "either" (explanations the recording cannot tell
+    apart, nothing named before them), or "none". An "either" is neither right nor wrong:
+    it is counted in its own column, with whether the truth is among its explanations."""
+    if named:
+        return named[0]
+    return "either" if either else "none"
+
+
 def score_set(case: dict, truth: list) -> dict:
     """Set-level verdict: exactly the concealed effects, each where it was concealed."""
     concealed = {t[0] for t in truth}
     named = set(case["named"])
     place = all(case["where"].get(eff) == muscles + joints
                 for eff, muscles, joints in truth if (muscles or joints) and eff in named)
+    unsure = {n for group in case["either"] for n in group}
     return {"set_ok": named == concealed, "place_ok": place,
             "missed": sorted(concealed - named), "extra": sorted(named - concealed),
+            # nothing wrong named, the rest said to be one of several explanations
+            "either_ok": bool(case["either"]) and named <= concealed
+            and concealed - named <= unsure,
             "improved": case["fit_after"] < case["fit_before"] if truth else None}
 
 
@@ -147,24 +165,30 @@ def run_multi(args) -> None:
                     cases.append(case)
                     ok = "ok " if case["set_ok"] and case["place_ok"] else "MISS"
                     print(f"{ok} {robot:18s} {label:32s} seed {seed}: named {case['where']} "
+                          f"either {case['either']} "
                           f"fit {case['fit_before']:.3f} → {case['fit_after']:.3f} "
                           f"rest noise {case['residual_is_noise']} ({case['seconds']:.1f} s)",
                           flush=True)
     args.out.write_text(json.dumps(cases, indent=1))
     print(f"\nrouting {args.routing} m, {args.samples} samples, {args.seeds} seeds per row\n")
-    print("| robot | concealed | exact set named | right muscle/joint | fit improved "
-          "| rest consistent with noise |")
-    print("|---|---|---|---|---|---|")
+    print("| robot | concealed | exact set named | right muscle/joint | either/or (truth "
+          "among them) | unexplained | fit improved | rest consistent with noise |")
+    print("|---|---|---|---|---|---|---|---|")
     for robot in args.robots:
         for label, _ in COMBOS:
             sel = [c for c in cases if c["robot"] == robot and c["combo"] == label]
             imp = "–" if label == "none" else f"{sum(bool(c['improved']) for c in sel)}/{len(sel)}"
             print(f"| {robot} | {label} | {sum(c['set_ok'] for c in sel)}/{len(sel)} | "
-                  f"{sum(c['set_ok'] and c['place_ok'] for c in sel)}/{len(sel)} | {imp} | "
+                  f"{sum(c['set_ok'] and c['place_ok'] for c in sel)}/{len(sel)} | "
+                  f"{sum(bool(c['either']) for c in sel)} ({sum(c['either_ok'] for c in sel)})"
+                  f" | {sum(bool(c['unexplained']) for c in sel)} | {imp} | "
                   f"{sum(c['residual_is_noise'] for c in sel)}/{len(sel)} |")
     hit = [c for c in cases if c["combo"] != "none"]
     print(f"\nexact set on the right muscles/joints: "
-          f"{sum(c['set_ok'] and c['place_ok'] for c in hit)}/{len(hit)}; false alarms on "
+          f"{sum(c['set_ok'] and c['place_ok'] for c in hit)}/{len(hit)}; either/or answers: "
+          f"{sum(bool(c['either']) for c in hit)} (truth among them in "
+          f"{sum(c['either_ok'] for c in hit)}); unexplained: "
+          f"{sum(bool(c['unexplained']) for c in hit)}; false alarms on "
           f"null: {sum(bool(c['named']) for c in cases if c['combo'] == 'none')}/"
           f"{sum(c['combo'] == 'none' for c in cases)}; fit improved: "
           f"{sum(bool(c['improved']) for c in hit)}/{len(hit)}; median time "
@@ -173,13 +197,17 @@ def run_multi(args) -> None:
 
 def table(cases: list[dict], robot: str, size: str) -> str:
     rows = [c for c in cases if c["robot"] == robot and c["size"] in (size, "-")]
-    head = "| concealed \\ named | " + " | ".join(CLASSES) + " | other |"
-    lines = [head, "|" + "---|" * (len(CLASSES) + 2)]
+    head = ("| concealed \\ named | " + " | ".join(CLASSES)
+            + " | other | either/or (truth among them) | unexplained |")
+    lines = [head, "|" + "---|" * (len(CLASSES) + 4)]
     for truth in CLASSES:
         sel = [c for c in rows if c["effect"] == truth]
         counts = [sum(c["top"] == k for c in sel) for k in CLASSES]
-        other = len(sel) - sum(counts)
-        lines.append(f"| {truth} | " + " | ".join(str(k) for k in counts) + f" | {other} |")
+        either = [c for c in sel if c["top"] == "either"]
+        among = sum(truth in {n for g in c["either"] for n in g} for c in either)
+        other = len(sel) - sum(counts) - len(either)
+        lines.append(f"| {truth} | " + " | ".join(str(k) for k in counts) + f" | {other} | "
+                     f"{len(either)} ({among}) | {sum(bool(c['unexplained']) for c in sel)} |")
     return "\n".join(lines)
 
 
@@ -212,7 +240,8 @@ def main() -> None:
                         cases.append(case)
                         ok = "ok " if case["top"] == effect else "MISS"
                         print(f"{ok} {robot:18s} {effect:18s} {size:5s} seed {seed}: "
-                              f"named {case['named']} fit {case['fit_before']:.3f} → "
+                              f"named {case['named']} either {case['either']} fit "
+                              f"{case['fit_before']:.3f} → "
                               f"{case['fit_after']:.3f} ({case['seconds']:.1f} s)", flush=True)
     args.out.write_text(json.dumps(cases, indent=1))
     for robot in args.robots:
@@ -222,6 +251,8 @@ def main() -> None:
     hits = [c for c in cases if c["effect"] != "none"]
     improved = sum(c["fit_after"] < c["fit_before"] for c in hits if c["top"] != "none")
     print(f"\ntop effect correct: {sum(c['top'] == c['effect'] for c in cases)}/{len(cases)}; "
+          f"either/or: {sum(c['top'] == 'either' for c in cases)}; unexplained: "
+          f"{sum(bool(c['unexplained']) for c in cases)}; "
           f"false alarms on null: {sum(c['top'] != 'none' for c in cases if c['effect'] == 'none')}"
           f"; fit improved where named: {improved}/{sum(c['top'] != 'none' for c in hits)}; "
           f"median time {np.median([c['seconds'] for c in cases]):.1f} s")

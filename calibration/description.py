@@ -45,6 +45,13 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pimbs_calibration.coupling import (
+    CouplingError,
+    JointCoupling,
+    coupling_order,
+    moved_by,
+    root_leader,
+)
 from pimbs_calibration.file_kind import MJCF_KIND, model_file_kind, not_a_muscle_file
 from pimbs_calibration.urdf_model import (
     UNLIMITED,
@@ -82,6 +89,19 @@ class NotAMuscleFileError(DescriptionError):
     def __init__(self, path: Path | str, kind: str) -> None:
         self.path, self.field, self.kind = Path(path), "<file>", kind
         ValueError.__init__(self, not_a_muscle_file(self.path, kind))
+
+
+class RobotNotFoundError(DescriptionError):
+    """A robot named by the caller (a command's ``--robot``) that is no built-in robot and
+    no file: nothing inside a description is wrong, so no field is named."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path, self.field = Path(path), "<file>"
+        where = ("" if self.path.is_absolute() else
+                 f" (a relative path starts from the current directory, {Path.cwd()})")
+        ValueError.__init__(
+            self, f"{self.path}: no such built-in robot or muscle file{where}. Use one of "
+            f"{', '.join(_BUILTIN)}, a path to a *{MUSCLE_SUFFIX} file or an MJCF *.xml")
 
 
 class _ArrayFieldsEq:
@@ -146,6 +166,9 @@ class RobotDescription(_ArrayFieldsEq):
     muscles: tuple[MuscleSpec, ...]
     locked: tuple[tuple[str, float], ...] = ()  # joints not driven, and the value they hold
     followers: tuple[tuple[str, str, float, float], ...] = ()  # mimic, leader, multiplier, c
+    # an MJCF's joint equalities that move a joint with a driven one, each after the one
+    # that moves its leader (see pimbs_calibration.coupling)
+    couplings: tuple[JointCoupling, ...] = ()
     # an MJCF whose spatial tendons are the muscles (then urdf_path is that file too and the
     # muscles' via-point paths are empty: MuJoCo routes them); None for URDF + via points
     mjcf_path: Path | None = None
@@ -173,11 +196,7 @@ def load_robot(name_or_path: str | Path, package_path: Sequence[Path] = ()
             return _load_file(Path(path))
     path = Path(text)
     if not path.is_file():
-        raise DescriptionError(
-            path, "robot", "no such built-in robot or muscle file",
-            f"Use one of {', '.join(_BUILTIN)}, a path to a *{MUSCLE_SUFFIX} file or an MJCF "
-            "*.xml",
-        )
+        raise RobotNotFoundError(path)
     if path.suffix.lower() == ".xml":
         from pimbs_calibration.mjcf import is_mjcf
 
@@ -387,7 +406,9 @@ def _parse_muscles(raw: dict, model, joints: tuple[str, ...], path: Path
         if not isinstance(entry, dict):
             raise DescriptionError(path, f"muscles[{i}]", "expected a mapping",
                                    "Write each muscle as a mapping with name, board_id, path")
-        muscles.append(_parse_muscle({**defaults, **entry}, i, model, joints, path))
+        sources = _sources([(entry, "its entry in the muscle file"),
+                            (defaults, "the muscle file's defaults")])
+        muscles.append(_parse_muscle({**defaults, **entry}, i, model, joints, path, sources))
     _check_unique(muscles, path)
     return tuple(muscles)
 
@@ -405,31 +426,53 @@ def _check_unique(muscles: Sequence[MuscleSpec], path: Path) -> None:
             seen[value] = i
 
 
-def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Path
-                  ) -> MuscleSpec:
+def _parse_muscle(entry: dict, i: int, model, joints: tuple[str, ...], path: Path,
+                  sources: dict[str, str]) -> MuscleSpec:
     field = f"muscles[{i}]"
-    settings = _muscle_settings(entry, field, path)
+    settings = _muscle_settings(entry, field, path, sources)
     via = _parse_path(_require(entry, "path", list, path, f"{field}.path"), model, joints,
                       path, f"{field}.path")
     return MuscleSpec(path=via, **settings)
 
 
-def _muscle_settings(entry: dict, field: str, path: Path) -> dict[str, Any]:
+def _sources(layers: Sequence[tuple[dict, str]]) -> dict[str, str]:
+    """Key -> where its value comes from: the first layer (highest precedence) that sets it."""
+    out: dict[str, str] = {}
+    for layer, words in layers:
+        for key in layer:
+            out.setdefault(key, words)
+    return out
+
+
+def _muscle_settings(entry: dict, field: str, path: Path, sources: dict[str, str],
+                     fix: str | None = None) -> dict[str, Any]:
     """Name, board, elastic law, limits, sensor calibration and protocol of one muscle entry
-    (everything but its path), validated."""
+    (everything but its path), validated. ``sources``: where each key's value came from, for
+    the messages; ``fix``: how to change a limit (default: in this muscle's entry)."""
     name = _require(entry, "name", str, path, f"{field}.name")
     board_id = _require(entry, "board_id", int, path, f"{field}.board_id")
     values: dict[str, float] = {}
     for key in _MUSCLE_FLOATS:
         value = float(_require(entry, key, (int, float), path, f"{field}.{key}"))
         if not math.isfinite(value) or (key in _POSITIVE and value <= 0):
-            raise DescriptionError(path, f"{field}.{key}", f"{value!r} is not a positive finite "
-                                   "number" if key in _POSITIVE else "not finite",
+            raise DescriptionError(path, f"{field}.{key}", f"muscle '{name}': {key} {value!r} "
+                                   f"({sources.get(key, 'given')}) is "
+                                   + ("not a positive finite number" if key in _POSITIVE
+                                      else "not finite"),
                                    f"Set {key} to a physically meaningful value")
         values[key] = value
-    if not 0 <= values["f_floor"] < values["f_max"]:
-        raise DescriptionError(path, f"{field}.f_floor", f"{values['f_floor']} is not in "
-                               f"[0, f_max={values['f_max']})", "Lower f_floor or raise f_max")
+    floor, ceiling = values["f_floor"], values["f_max"]
+    if not 0 <= floor < ceiling:
+        where = fix or (f"set f_floor (or f_max) in the entry of muscle '{name}' in "
+                        f"{path.name}, e.g. '- {{name: {name}, f_floor: {ceiling / 20:.2g}, "
+                        "...}'")
+        raise DescriptionError(
+            path, f"{field}.f_floor",
+            f"muscle '{name}': its holding floor f_floor {floor:g} N "
+            f"({sources.get('f_floor', 'given')}) is "
+            + (f"not below its f_max {ceiling:g} N ({sources.get('f_max', 'given')})"
+               if floor >= 0 else "negative"),
+            f"The floor must lie in [0, f_max): {where}")
     protocol = entry.get("protocol")
     if protocol is not None:
         if not isinstance(protocol, str) or not protocol:
@@ -488,25 +531,36 @@ def _supporting_joints(model, link: str) -> set[str]:
 
 # What a bare MJCF gets for what MuJoCo does not say (docs/mujoco.md lists them): the elastic
 # law and sensor calibration of the built-in two-link arm's boards, and a sampling range for a
-# hinge without limits.
+# hinge without limits. The holding floor follows the muscle: 10 N, or 1/20 of its f_max for
+# a muscle weaker than 200 N (a MyoSuite finger muscle declares 5-10 N).
 MJCF_MUSCLE_DEFAULTS: dict[str, float] = {
     "K": 1000.0, "f_max": 600.0, "f_floor": 10.0, "counts_per_m": 108650.0,
     "loadcell_n_per_count": 0.25, "loadcell_offset_counts": 2048.0,
 }
+MJCF_FLOOR_SHARE = 1 / 20  # the default f_floor is at most this share of the muscle's f_max
 MJCF_UNLIMITED_RANGE = (-0.5, 0.5)  # rad: sampling range of a hinge with no range
+_DEFAULT_FLOOR_WORDS = "PIMBS's default for an MJCF muscle: the smaller of 10 N and f_max/20"
+
+
+def mjcf_default_floor(f_max: float) -> float:
+    """The holding floor (N) of an MJCF muscle whose f_floor nothing sets."""
+    return min(MJCF_MUSCLE_DEFAULTS["f_floor"], MJCF_FLOOR_SHARE * f_max)
 
 
 def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
     """A description whose muscles are the spatial tendons of the MJCF ``xml``.
 
     ``raw`` is the muscle file naming it (``mjcf: arm.xml``; ``{}`` for a bare MJCF) and
-    ``path`` that file (or the MJCF itself). Driven joints: ``joints`` or every hinge, sampled
-    in ``range`` or the hinge's own range (``MJCF_UNLIMITED_RANGE`` if it has none); every
-    other hinge and slide joint is locked at ``lock`` or its ``qpos0``. Muscles: ``muscles``
-    (tendons by name, in column order) or every spatial tendon in file order, boards numbered
-    1, 2, ... in that order; f_max is the largest tension an actuator on the tendon declares
-    (a force range, a MuJoCo muscle's peak force or a motor's control range; times its gear)
-    where there is one.
+    ``path`` that file (or the MJCF itself). Driven joints: ``joints`` or every hinge that
+    moves on its own (not the follower of an active ``<equality><joint>``), sampled in
+    ``range`` or the hinge's own range (``MJCF_UNLIMITED_RANGE`` if it has none). A follower
+    whose chain of leaders starts at a driven joint moves with it (``couplings``); every other
+    hinge and slide joint is locked at ``lock`` or its ``qpos0``, a follower of a locked
+    joint where its equality puts it. Muscles: ``muscles`` (tendons by name, in column order)
+    or every spatial tendon in file order, boards numbered 1, 2, ... in that order; f_max is
+    the largest tension an actuator on the tendon declares (a force range, a MuJoCo muscle's
+    peak force or a motor's control range; times its gear) where there is one, and f_floor
+    follows f_max (``mjcf_default_floor``) unless the muscle file sets it.
     """
     from pimbs_calibration.mjcf import MjcfError, read_mjcf
 
@@ -516,12 +570,22 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
         where = "" if exc.path.resolve() == path.resolve() else f"{exc.path}: "
         raise DescriptionError(path, "mjcf" if where else "<file>", where + exc.problem,
                                exc.fix) from exc
+    couplings = _mjcf_couplings(arm, xml, path)
     hinges = arm.hinge_names()
     if not hinges:
-        raise DescriptionError(path, "joints", f"{xml} has no hinge joint",
+        kinds = sorted({j.type for j in arm.joints})
+        what = (f"has no hinge joint (its joints: {', '.join(kinds)})" if arm.joints
+                else "has no joint" + ("" if arm.tendons else " and no tendon: nothing a "
+                                       "muscle could move"))
+        raise DescriptionError(path, "joints", f"{xml} {what}",
                                "Muscles drive hinge joints; add <joint type=\"hinge\">")
+    independent = [h for h in hinges if h not in couplings]
+    if not independent:
+        raise DescriptionError(path, "joints", f"every hinge of {xml.name} follows another "
+                               "joint through an <equality><joint>", "Muscles drive joints "
+                               "that move on their own: give the model one")
     by_name = {j.name: j for j in arm.joints}
-    entries = raw.get("joints", [{"name": n} for n in hinges])
+    entries = raw.get("joints", [{"name": n} for n in independent])
     if not isinstance(entries, list) or not entries:
         raise DescriptionError(path, "joints", f"expected a list of joints, got {entries!r}",
                                "Write '- {name: <hinge>, range: [lo, hi]}' per driven joint")
@@ -532,6 +596,9 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
             raise DescriptionError(path, field, "expected a mapping {name, range}",
                                    "Write '- {name: <joint>, range: [lo, hi]}'")
         name = _require(entry, "name", str, path, f"{field}.name")
+        if name in couplings:
+            problem, fix = _follower_words(couplings, name, names)
+            raise DescriptionError(path, f"{field}.name", problem, fix)
         if name not in hinges or name in names:
             problem = (f"joint '{name}' listed twice" if name in names else
                        f"'{name}' is not a hinge joint of {xml.name} (hinges: {hinges})")
@@ -548,7 +615,7 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
                                    "Narrow the sampling range or widen the MJCF joint range")
         names.append(name)
         ranges.append(rng)
-    locked = _mjcf_lock(raw, arm, names, path)
+    locked, followers = _mjcf_lock(raw, arm, names, couplings, path)
     muscles = _mjcf_muscles(raw, arm, path)
     encoders = raw.get("joint_encoders", True)
     if not isinstance(encoders, bool):
@@ -561,20 +628,54 @@ def load_mjcf_description(xml: Path, raw: dict, path: Path) -> RobotDescription:
     return RobotDescription(
         name=name, urdf_path=xml.resolve(), muscle_path=path.resolve(), joints=tuple(names),
         joint_range=np.array(ranges, dtype=np.float64).reshape(len(names), 2),
-        joint_encoders=encoders, muscles=muscles, locked=locked, mjcf_path=xml.resolve())
+        joint_encoders=encoders, muscles=muscles, locked=locked, mjcf_path=xml.resolve(),
+        couplings=followers)
 
 
-def _mjcf_lock(raw: dict, arm, driven: list[str], path: Path) -> tuple[tuple[str, float], ...]:
-    """Every hinge and slide joint not driven, at ``lock`` or its qpos0 (ball and free joints
-    stay at qpos0)."""
+def _mjcf_couplings(arm, xml: Path, path: Path) -> dict[str, JointCoupling]:
+    """Follower -> its active joint equality, each after the one moving its leader."""
+    try:
+        ordered = coupling_order(arm.couplings)
+    except CouplingError as exc:
+        where = "<file>" if xml.resolve() == path.resolve() else "mjcf"
+        raise DescriptionError(path, where, f"{xml.name}: {exc}", "Keep one active "
+                               "<equality><joint> per follower joint, leaders not following "
+                               "their followers") from exc
+    return {c.follower: c for c in ordered}
+
+
+def _follower_words(couplings: dict[str, JointCoupling], name: str, driven: Sequence[str]
+                    ) -> tuple[str, str]:
+    """Why a follower can be neither driven nor locked, and what to do instead."""
+    c = couplings[name]
+    root = root_leader(couplings, name)
+    if c.leader is None:
+        return (f"'{name}' is held at {c.value(0.0):.4g} by the MJCF's joint equality "
+                f"'{c.equality}'", "Leave it out: it cannot move")
+    problem = f"'{name}' follows '{c.leader}' through the MJCF's joint equality '{c.equality}'"
+    if root is None:
+        return problem, "Leave it out: its chain of leaders is held by a joint equality"
+    if root in driven:
+        return problem, f"Leave it out: it moves with the driven joint '{root}'"
+    return problem, f"Drive or lock its leader '{root}' instead"
+
+
+def _mjcf_lock(raw: dict, arm, driven: list[str], couplings: dict[str, JointCoupling],
+               path: Path) -> tuple[tuple[tuple[str, float], ...], tuple[JointCoupling, ...]]:
+    """Where every hinge and slide joint that is not driven is held (``lock`` or its qpos0;
+    a follower where its equality puts it; ball and free joints stay at qpos0), and the
+    couplings that move a joint with a driven one."""
     lock = raw.get("lock", {}) or {}
     if not isinstance(lock, dict):
         raise DescriptionError(path, "lock", f"expected a mapping, got {lock!r}",
                                "Write 'lock: {joint_name: angle_in_rad}'")
-    free = {j.name: j for j in arm.joints if j.type in ("hinge", "slide")
-            and j.name not in driven}
+    scalar = [j for j in arm.joints if j.type in ("hinge", "slide")]
+    free = {j.name: j for j in scalar if j.name not in driven and j.name not in couplings}
     for name, value in lock.items():
         field = f"lock.{name}"
+        if name in couplings:
+            problem, fix = _follower_words(couplings, name, driven)
+            raise DescriptionError(path, field, problem, fix)
         if name not in free:
             raise DescriptionError(path, field, f"'{name}' is not a hinge or slide joint that "
                                    f"is not driven (those: {sorted(free)})",
@@ -588,12 +689,19 @@ def _mjcf_lock(raw: dict, arm, driven: list[str], path: Path) -> tuple[tuple[str
             raise DescriptionError(path, field, f"{value} is outside the joint's range "
                                    f"[{joint.range[0]:g}, {joint.range[1]:g}]",
                                    "Lock it inside its range")
-    return tuple((n, float(lock.get(n, j.qpos0))) for n, j in free.items())
+    values = {n: float(lock.get(n, j.qpos0)) for n, j in free.items()}
+    followers = moved_by(couplings, driven)
+    for c in couplings.values():  # leaders first: a held follower's leader has its value
+        if c not in followers:
+            values[c.follower] = c.value(values[c.leader] if c.leader is not None else 0.0)
+    locked = tuple((j.name, values[j.name]) for j in scalar if j.name in values)
+    return locked, tuple(followers)
 
 
 def _mjcf_muscles(raw: dict, arm, path: Path) -> tuple[MuscleSpec, ...]:
     """The muscles: listed tendons (by name) or every spatial tendon; numbers from the entry,
-    then ``defaults``, then the tendon's actuator, then ``MJCF_MUSCLE_DEFAULTS``."""
+    then ``defaults``, then the tendon's actuator, then ``MJCF_MUSCLE_DEFAULTS`` (f_floor:
+    ``mjcf_default_floor`` of the muscle's f_max)."""
     spatial = arm.spatial_names()
     tendons = {t.name: t for t in arm.tendons}
     if not spatial:
@@ -603,6 +711,7 @@ def _mjcf_muscles(raw: dict, arm, path: Path) -> tuple[MuscleSpec, ...]:
     if not isinstance(defaults, dict):
         raise DescriptionError(path, "defaults", "expected a mapping",
                                "Write 'defaults: {K: 1000, ...}' or remove it")
+    listed = "muscles" in raw
     entries = raw.get("muscles", [{"name": n} for n in spatial])
     if not isinstance(entries, list) or not entries:
         raise DescriptionError(path, "muscles", f"expected a list of tendons, got {entries!r}",
@@ -620,9 +729,40 @@ def _mjcf_muscles(raw: dict, arm, path: Path) -> tuple[MuscleSpec, ...]:
             raise DescriptionError(path, f"{field}.name", f"'{name}' is {what} (spatial "
                                    f"tendons: {spatial})", "Name a spatial tendon")
         base = dict(MJCF_MUSCLE_DEFAULTS, board_id=i + 1)
-        if tendons[name].force_limit is not None:
-            base["f_max"] = tendons[name].force_limit
-        settings = _muscle_settings({**base, **defaults, **entry}, field, path)
-        muscles.append(MuscleSpec(path=(), **settings))
+        layers = [(entry, f"its entry in {path.name}"), (defaults, f"the defaults of {path.name}")]
+        tendon = tendons[name]
+        if tendon.force_limit is not None:
+            base["f_max"] = tendon.force_limit
+            layers.append(({"f_max": None}, tendon.force_source))
+        layers.append((base, "PIMBS's default for an MJCF muscle"))
+        settings = {**base, **defaults, **entry}
+        sources = _sources(layers)
+        if "f_floor" not in entry and "f_floor" not in defaults:
+            f_max = settings["f_max"]
+            if isinstance(f_max, int | float) and not isinstance(f_max, bool) \
+                    and math.isfinite(f_max) and f_max > 0:
+                settings["f_floor"] = mjcf_default_floor(float(f_max))
+                sources["f_floor"] = _DEFAULT_FLOOR_WORDS
+        fix = _limit_fix(name, settings, listed, "f_floor" in defaults, path)
+        muscle = _muscle_settings(settings, field if listed else f"tendon {name}", path,
+                                  sources, fix)
+        muscles.append(MuscleSpec(path=(), **muscle))
     _check_unique(muscles, path)
     return tuple(muscles)
+
+
+def _limit_fix(name: str, settings: dict, listed: bool, floor_in_defaults: bool, path: Path
+               ) -> str:
+    """How to give one MJCF muscle other limits: in the muscle file that names the MJCF (an
+    entry under ``muscles``), or, for a bare MJCF, in such a file written for it."""
+    f_max = settings.get("f_max")
+    floor = (f"{f_max / 20:.2g}" if isinstance(f_max, int | float) and not isinstance(f_max, bool)
+             and f_max > 0 else "1")
+    entry = f"'- {{name: {name}, f_floor: {floor}}}'"
+    if path.suffix.lower() == ".xml":
+        return (f"write a muscle file naming this MJCF ('mjcf: {path.name}', docs/mujoco.md) "
+                f"and set f_floor (or f_max) for it under 'muscles': {entry}")
+    where = "its entry under 'muscles'" if listed else "an entry for it under 'muscles'"
+    also = (" or take f_floor out of 'defaults' (each muscle then gets the smaller of 10 N and "
+            "f_max/20)" if floor_in_defaults else "")
+    return f"set f_floor (or f_max) in {where} of {path.name}: {entry}{also}"

@@ -8,7 +8,10 @@ MJCF rule mean what MuJoCo says they mean); ``description.py`` turns what it fin
 ``RobotDescription`` and MuJoCo measures the tendons (``pimbs_arm.backends.mujoco_tendons``).
 
 Unnamed objects get the names MuJoCo's own viewer would show them by: ``joint<i>``,
-``tendon<i>`` (index in file order). ``MjcfError`` names the file and what to do.
+``tendon<i>`` (index in file order), unless the file itself uses that name for another
+object (then ``joint<i>_unnamed``): a generated name never collides with one the file
+gives. ``<equality><joint>`` couplings are read as ``JointCoupling`` (see ``coupling``).
+``MjcfError`` names the file and what to do.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+
+from pimbs_calibration.coupling import JointCoupling
 
 _JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball",
                 int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
@@ -55,6 +60,8 @@ class MjcfTendon:
     spatial: bool
     route: tuple[str, ...]  # "site a", "cylinder pulley_geom", "pulley /2", ... in file order
     force_limit: float | None  # largest tension an actuator on it declares, N
+    force_source: str | None  # where force_limit comes from, in words ("muscle actuator 'x'
+    # (its peak force)")
     length_range: tuple[float, float] | None  # the tendon's own length limits (m), if limited
 
 
@@ -66,6 +73,8 @@ class MjcfArm:
     name: str  # <mujoco model="..."> (MuJoCo's default "MuJoCo Model" -> the file stem)
     joints: tuple[MjcfJoint, ...]
     tendons: tuple[MjcfTendon, ...]
+    couplings: tuple[JointCoupling, ...] = ()  # every <equality><joint>, active or not
+    other_equalities: tuple[str, ...] = ()  # "weld 'x'", ...: not joint couplings
 
     def hinge_names(self) -> list[str]:
         return [j.name for j in self.joints if j.type == "hinge"]
@@ -107,11 +116,57 @@ def compile_model(path: Path) -> mujoco.MjModel:
 
 
 def joint_names(model: mujoco.MjModel) -> list[str]:
-    return [model.joint(i).name or f"joint{i}" for i in range(model.njnt)]
+    """Every joint's name; unnamed ones ``joint<i>`` (see ``_named``)."""
+    return _named([model.joint(i).name for i in range(model.njnt)], "joint")
 
 
 def tendon_names(model: mujoco.MjModel) -> list[str]:
-    return [model.tendon(i).name or f"tendon{i}" for i in range(model.ntendon)]
+    """Every tendon's name; unnamed ones ``tendon<i>`` (see ``_named``)."""
+    return _named([model.tendon(i).name for i in range(model.ntendon)], "tendon")
+
+
+def _named(names: list[str], kind: str) -> list[str]:
+    """The file's names, and for an unnamed object ``<kind><i>`` (i its index), or, where the
+    file calls another object that, ``<kind><i>_unnamed`` (with ``_`` added until free)."""
+    taken = {n for n in names if n}
+    out = []
+    for i, name in enumerate(names):
+        if not name:
+            name = f"{kind}{i}"
+            if name in taken:
+                name += "_unnamed"
+                while name in taken:
+                    name += "_"
+            taken.add(name)
+        out.append(name)
+    return out
+
+
+def joint_couplings(model: mujoco.MjModel) -> list[JointCoupling]:
+    """Every ``<equality><joint>`` of the compiled model, in file order (active or not)."""
+    joints = joint_names(model)
+    names = _named([model.eq(i).name for i in range(model.neq)], "equality")
+    out = []
+    for i in range(model.neq):
+        if int(model.eq_type[i]) != int(mujoco.mjtEq.mjEQ_JOINT):
+            continue
+        follower, leader = int(model.eq_obj1id[i]), int(model.eq_obj2id[i])
+        ref = model.qpos0[model.jnt_qposadr[follower]]
+        lead_ref = model.qpos0[model.jnt_qposadr[leader]] if leader >= 0 else 0.0
+        out.append(JointCoupling(
+            equality=names[i], follower=joints[follower],
+            leader=joints[leader] if leader >= 0 else None,
+            coef=tuple(float(c) for c in model.eq_data[i, :5]), follower_ref=float(ref),
+            leader_ref=float(lead_ref), active=bool(model.eq_active0[i])))
+    return out
+
+
+def _other_equalities(model: mujoco.MjModel) -> tuple[str, ...]:
+    """The equalities that are not joint couplings, in words (``weld 'x'``)."""
+    names = _named([model.eq(i).name for i in range(model.neq)], "equality")
+    return tuple(f"{mujoco.mjtEq(int(model.eq_type[i])).name.removeprefix('mjEQ_').lower()} "
+                 f"'{names[i]}'" for i in range(model.neq)
+                 if int(model.eq_type[i]) != int(mujoco.mjtEq.mjEQ_JOINT))
 
 
 def read_mjcf(path: Path) -> MjcfArm:
@@ -131,11 +186,14 @@ def read_mjcf(path: Path) -> MjcfArm:
         spatial = int(types[0]) != int(mujoco.mjtWrap.mjWRAP_JOINT)
         length_range = (tuple(float(v) for v in model.tendon_range[i])
                         if model.tendon_limited[i] else None)
+        limit, source = limits.get(i, (None, None))
         tendons.append(MjcfTendon(name=name, spatial=spatial,
                                   route=_route(model, i) if spatial else (),
-                                  force_limit=limits.get(i), length_range=length_range))
+                                  force_limit=limit, force_source=source,
+                                  length_range=length_range))
     return MjcfArm(path=path, name=_model_name(path, model), joints=tuple(joints),
-                   tendons=tuple(tendons))
+                   tendons=tuple(tendons), couplings=tuple(joint_couplings(model)),
+                   other_equalities=_other_equalities(model))
 
 
 def _model_name(path: Path, model: mujoco.MjModel) -> str:
@@ -159,8 +217,9 @@ def _route(model: mujoco.MjModel, tendon: int) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
-    """Tendon id -> the largest tension an actuator on it declares (N).
+def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, tuple[float, str]]:
+    """Tendon id -> the largest tension an actuator on it declares (N), and which actuator
+    declares it how, in words.
 
     A force-limited actuator declares its largest |forcerange|; a MuJoCo muscle that is not
     force-limited declares its peak active force F0 (``force``, or MuJoCo's own rule when
@@ -168,25 +227,32 @@ def _actuator_force_limits(model: mujoco.MjModel) -> dict[int, float]:
     bias) its largest |ctrlrange| times its gain. The tendon carries |gear| times the
     actuator's force. Several actuators on one tendon: the largest.
     """
-    limits: dict[int, float] = {}
+    limits: dict[int, tuple[float, str]] = {}
     for a in range(model.nu):
         if int(model.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_TENDON):
             continue
+        name = model.actuator(a).name or f"actuator{a}"
         if model.actuator_forcelimited[a]:
             bound = float(np.abs(model.actuator_forcerange[a]).max())
+            how = f"the forcerange of actuator '{name}'"
         elif int(model.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_MUSCLE):
             bound = _muscle_peak_force(model, a)
+            how = f"the peak force of muscle actuator '{name}'"
         elif (model.actuator_ctrllimited[a]
               and int(model.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_FIXED)
               and int(model.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_NONE)):
             bound = float(np.abs(model.actuator_ctrlrange[a]).max()
                           * abs(model.actuator_gainprm[a, 0]))
+            how = f"the ctrlrange x gain of motor '{name}'"
         else:
             continue
-        bound *= abs(float(model.actuator_gear[a, 0]))
-        if bound > 0:
-            tendon = int(model.actuator_trnid[a, 0])
-            limits[tendon] = max(limits.get(tendon, 0.0), bound)
+        gear = abs(float(model.actuator_gear[a, 0]))
+        bound *= gear
+        if gear != 1:
+            how += f" x gear {gear:g}"
+        tendon = int(model.actuator_trnid[a, 0])
+        if bound > 0 and bound > limits.get(tendon, (0.0, ""))[0]:
+            limits[tendon] = (bound, how)
     return limits
 
 

@@ -18,7 +18,13 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import check_output, robot_option, user_errors
+from pimbs_cli.common import (
+    check_output,
+    load_usable_arm,
+    robot_option,
+    rows_as_samples,
+    user_errors,
+)
 
 
 def _default_out(robot: str) -> Path:
@@ -54,7 +60,9 @@ def _stop_on_signals() -> Iterator[None]:
               help="where the boards are: can0 (socketcan), pcan:PCAN_USBBUS1, "
                    "slcan:/dev/ttyACM0, /dev/ttyUSB0 (serial), or virtual (slcan-pty: through "
                    "an emulated SLCAN adapter) for the simulated arm")
-@click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True)
+@click.option("--samples", "-n", type=click.IntRange(min=1), default=496, show_default=True,
+              help="poses in the recording (the paper's real arm: 496); --resume continues "
+                   "towards the same number")
 @robot_option()
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
               help="recording to write [default: collection-ROBOT-UTCTIME.parquet]")
@@ -91,6 +99,10 @@ def _stop_on_signals() -> Iterator[None]:
                    "(mj_step dynamics; may differ from --robot, as a real arm does)")
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
+@click.option("--poses-file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="collect these poses instead of the seeded sequence, one sample per row "
+                   "(CSV: a column per joint, optionally floor_<muscle> columns; `pimbs "
+                   "diagnose --poses-out` writes one)")
 @click.option("--calibration", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="encoder zeros from `pimbs zero` [default: ROBOT.calibration.yaml beside "
                    "the robot file (here for a built-in robot) when it exists]")
@@ -99,13 +111,13 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
             settle_timeout: float, fixed_wait: float | None, schema_dir: Path | None,
-            plant: Path | None, mock_speed: float, calibration: Path | None) -> None:
+            plant: Path | None, mock_speed: float, calibration: Path | None,
+            poses_file: Path | None = None) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
-    from pimbs_arm.model import ArmModel
     from pimbs_arm.poses import replaced_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
@@ -120,11 +132,15 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
                                f"use --port virtual, not {port!r}")
     if resume and out is None:
         raise click.UsageError("--resume needs --out FILE (the recording to continue)")
-    model = ArmModel.load(robot)
+    model = load_usable_arm(robot)  # the checks `simulate` runs
     parse_faults(faults, model.muscles)  # refuse a bad spec before touching the arm
     out = out or _default_out(robot)
     check_output(out, force=True, what="recording")  # no directory made for a mistyped path
-    plan, schema_meta = _plan(model, samples, seed, map_kind, schema_dir)
+    if poses_file is not None:
+        plan, schema_meta = _file_plan(model, poses_file, samples, seed, map_kind, schema_dir)
+    else:
+        plan, schema_meta = _plan(model, samples, seed, map_kind, schema_dir)
+    samples = plan.n_samples
     if schema_dir is not None and any(c.startswith("routing") and "seed=" not in c
                                       for c in conceal):
         click.echo(f"note: the concealed routing is drawn from --seed {seed}, so it is the "
@@ -178,6 +194,21 @@ def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None
     plan = SchemaPlan(model, schema, samples, seed, map_kind)
     return plan, {"schema": str(schema_dir),
                   "schema_weights_sha256": file_sha256(schema_dir / WEIGHTS)}
+
+
+def _file_plan(model, poses_file: Path, samples: int, seed: int, map_kind: str,
+               schema_dir: Path | None):
+    """The plan of a poses file (its rows set the sample count), and its metadata."""
+    from pimbs_arm.poses_file import read_pose_plan
+    from pimbs_hw.collection.plan import CollectionPlan
+
+    if schema_dir is not None:
+        raise click.UsageError("--poses-file and --schema do not go together: the file's "
+                               "poses are commanded with the geometric model")
+    poses = read_pose_plan(poses_file, model, seed, map_kind)
+    rows = rows_as_samples(samples, len(poses.poses), poses_file)
+    return (CollectionPlan(model, rows, seed, map_kind, poses=poses),
+            {"poses_file": str(poses_file)})
 
 
 def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, str | None]:

@@ -37,11 +37,39 @@ def user_errors(func: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def _known_robot(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """A --robot that is neither a built-in robot nor a file is the option's error, named as
+    such (not a field of some description)."""
+    from pimbs_calibration.description import RobotNotFoundError, builtin_robots
+
+    if value is None or value in builtin_robots() or Path(value).is_file():
+        return value
+    raise click.BadParameter(str(RobotNotFoundError(value)), ctx=ctx, param=param)
+
+
 def robot_option(default: str | None = "two-link-4-muscle") -> Callable[[F], F]:
     """`--robot NAME|PATH`: a built-in robot name, a `.muscles.yaml` or an MJCF `.xml`."""
     return click.option("--robot", default=default, show_default=default is not None,
+                        callback=_known_robot,
                         help="built-in robot name (two-link-4-muscle, left-arm-5dof), path "
                              "to a .muscles.yaml robot description, or an MJCF .xml")
+
+
+def load_usable_arm(robot: str) -> Any:
+    """The ``ArmModel`` that `pimbs simulate` and `pimbs collect` run on: the description,
+    refused in one line where it fails a check (``pimbs_arm.routing.usable_problem``, which
+    `pimbs robot` marks in place). One function for both commands, so neither accepts a
+    description the other refuses."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.routing import usable_problem
+    from pimbs_calibration.description import load_robot
+
+    arm = ArmModel(load_robot(robot), check=False)
+    problem = usable_problem(arm)
+    if problem:
+        raise click.ClickException(f"{arm.robot.muscle_path}: {problem}; `pimbs robot "
+                                   f"{robot}` shows the moment arms and the poses")
+    return arm
 
 
 def force_option() -> Callable[[F], F]:
@@ -109,6 +137,9 @@ def progress(label: str, total: int | None, unit: str, *, console: Any = None,
     """``update(done, extra="")`` for a long loop: a transient rich bar on a terminal,
     :class:`LogProgress` lines otherwise (and a last line however the loop ends).
 
+    A run that fails before anything was done prints no progress line: its error is the
+    one line to read.
+
     ``console`` is the rich console the command prints through (stderr by default); it
     decides what counts as a terminal, so ``FORCE_TERMINAL``/``NO_COLOR`` are honoured.
     """
@@ -138,8 +169,11 @@ def progress(label: str, total: int | None, unit: str, *, console: Any = None,
 
     try:
         yield line
-    finally:
-        log.update(last[0], last[1], final=True)
+    except BaseException:
+        if last[0]:  # how far a failed run got; nothing for one that failed before starting
+            log.update(last[0], last[1], final=True)
+        raise
+    log.update(last[0], last[1], final=True)
 
 
 def _rate(rate: float) -> str:
@@ -151,3 +185,13 @@ def _clock(seconds: float) -> str:
     if s >= 3600:
         return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
     return f"{s // 60}:{s % 60:02d}"
+
+
+def rows_as_samples(samples: int, rows: int, poses_file: Path) -> int:
+    """A poses file sets the sample count (one per row); ``--samples`` given beside it must
+    agree."""
+    source = click.get_current_context().get_parameter_source("samples")
+    if source == click.core.ParameterSource.COMMANDLINE and samples != rows:
+        raise click.UsageError(f"--samples {samples} but {poses_file} holds {rows} poses; "
+                               "leave --samples out (one sample per row)")
+    return rows

@@ -63,7 +63,10 @@ def command(model: Path, data: Path, robot: str | None, starts: int, json_path: 
         out = {"model": str(model), "data": str(data), "n_samples": samples.n_samples,
                **report.to_json()}
         write_text_atomic(json_path, json.dumps(out, indent=2) + "\n")
+        click.echo(f"wrote {json_path}: every sample's estimate"
+                   + (" and the rms error per joint (rms_error_deg)" if measured else ""))
     if plot_path is not None:
         from pimbs_learn.estimate_plot import estimate_figure
 
         estimate_figure(report, samples.theta, plot_path)
+        click.echo(f"wrote {plot_path}: estimated against measured joint angles")

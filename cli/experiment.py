@@ -18,9 +18,10 @@ from pimbs_cli.common import check_output, force_option, progress, user_errors
 @click.option("--tables", default="1,2,3", show_default=True,
               help="which tables to run, e.g. '1,2' or '3'")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("experiment-out"), show_default=True)
+              default=Path("experiment-out"), show_default=True,
+              help="directory for the tables, curves and figures")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
-              show_default=True)
+              show_default=True, help="Adam learning rate of every run (the paper's 1e-3)")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
               help="cuda trains all runs of one table cell-row together (stacked weights)")
 @click.option("--n-train", "n_train", type=click.IntRange(min=1), multiple=True,

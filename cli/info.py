@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from pimbs_cli.common import user_errors
+from pimbs_cli.common import USER_ERRORS, user_errors
 
 
 def _range(values: np.ndarray) -> str:
@@ -98,6 +98,9 @@ def pose_accuracy(rec) -> list[str]:
 def command(files: tuple[Path, ...], source: Path | None, force: bool) -> None:
     """Summarise recordings (robot, joints, muscles, rows, source, value ranges).
 
+    Every valid FILE is summarised; each one that is not is refused in one line, and the
+    exit status is then 1.
+
     With --adopt-metadata FROM, first give the one FILE the metadata of FROM, the recording
     its rows came from (pandas and polars drop it unless told to keep it)."""
     if source is not None:
@@ -109,7 +112,15 @@ def command(files: tuple[Path, ...], source: Path | None, force: bool) -> None:
         click.echo(f"adopted the metadata of {source} into {files[0]}")
     elif force:
         raise click.UsageError("--force only goes with --adopt-metadata")
-    for i, path in enumerate(files):
-        if i:
-            click.echo()
-        click.echo(summary(path))
+    refused = shown = 0
+    for path in files:  # a bad file does not hide the good ones after it
+        try:
+            text = summary(path)
+        except USER_ERRORS as exc:
+            click.echo(f"Error: {exc}", err=True)
+            refused += 1
+            continue
+        click.echo(f"\n{text}" if shown else text)
+        shown += 1
+    if refused:
+        raise SystemExit(1)  # each refusal has had its line

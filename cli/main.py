@@ -10,22 +10,28 @@ import importlib
 
 import click
 
-# command name -> module under `cli` that exports a click command named `command`
-COMMANDS: dict[str, str] = {
-    "simulate": "pimbs_cli.simulate",
-    "info": "pimbs_cli.info",
-    "collect": "pimbs_cli.collect",
-    "mockbus": "pimbs_cli.mockbus",
-    "train": "pimbs_cli.train",
-    "experiment": "pimbs_cli.experiment",
-    "diagnose": "pimbs_cli.diagnose",
-    "scan": "pimbs_cli.scan",
-    "zero": "pimbs_cli.zero",
-    "check-wiring": "pimbs_cli.check_wiring",
-    "robot": "pimbs_cli.robot",
-    "import": "pimbs_cli.import_log",
-    "estimate": "pimbs_cli.estimate",
-    "export": "pimbs_cli.export",
+# command name -> (module under `cli` that exports a click command named `command`, the
+# one-line summary `pimbs --help` lists; whole, within an 80-column terminal)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("pimbs_cli.simulate",
+                 "Simulate a recording (the paper's data, or an effect hidden)."),
+    "info": ("pimbs_cli.info", "Summarise recordings; refuse a broken one by name."),
+    "collect": ("pimbs_cli.collect", "Collect body-schema data on the arm or the mock bus."),
+    "mockbus": ("pimbs_cli.mockbus", "Run simulated muscle boards on this computer."),
+    "train": ("pimbs_cli.train", "Learn the body schema from a recording."),
+    "experiment": ("pimbs_cli.experiment",
+                   "Reproduce the paper's Tables I–III and figures."),
+    "diagnose": ("pimbs_cli.diagnose",
+                 "Find why a real recording disagrees with the simulation."),
+    "scan": ("pimbs_cli.scan", "List the boards heard on a port (sends nothing)."),
+    "zero": ("pimbs_cli.zero", "Zero the motor encoders with the arm at its home pose."),
+    "check-wiring": ("pimbs_cli.check_wiring",
+                     "Pull each muscle gently; name a wrong winding direction."),
+    "robot": ("pimbs_cli.robot", "Explain a robot description: joints, muscles, routing."),
+    "import": ("pimbs_cli.import_log", "Turn a ROS 1 or ROS 2 bag into a recording."),
+    "estimate": ("pimbs_cli.estimate",
+                 "Estimate joint angles from muscle lengths and tensions."),
+    "export": ("pimbs_cli.export", "Write a learned body schema as one ONNX graph."),
 }
 
 
@@ -63,10 +69,18 @@ class LazyGroup(click.Group):
         return sorted(COMMANDS)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        module_name = COMMANDS.get(cmd_name)
-        if module_name is None:
+        if cmd_name not in COMMANDS:
             return None
-        return importlib.import_module(module_name).command
+        module_name, summary = COMMANDS[cmd_name]
+        command = importlib.import_module(module_name).command
+        command.short_help = summary
+        return command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list from ``COMMANDS`` alone: whole one-line summaries (click would
+        cut each docstring at the terminal's width with "..."), and no command imported."""
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, COMMANDS[name][1]) for name in self.list_commands(ctx)])
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -72,10 +72,12 @@ def check_port(port: str) -> str:
                    "differ from --robot, as a real arm does)")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
               help="s to run [default: until Ctrl-C]")
+@click.option("--verbose", is_flag=True,
+              help="also print the log of the libraries underneath (canopen, python-can)")
 @user_errors
 def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             conceal: tuple[str, ...], seed: int, speed: float, plant: Path | None,
-            duration: float | None) -> None:
+            duration: float | None, verbose: bool) -> None:
     """Run simulated muscle boards of ROBOT on a pty or a local CAN channel until Ctrl-C."""
     from pimbs_calibration.description import load_robot
     from pimbs_hw.errors import PortError
@@ -83,7 +85,11 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
     from pimbs_sim.effects import parse_effect
 
     link = check_port("pty" if serial else link)
-    logging.basicConfig(level=logging.INFO, format="mockbus: %(message)s")
+    # the simulated boards' own news (a fault that fires) always; the libraries' INFO log
+    # (canopen describes every PDO it maps) only when asked for
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="mockbus: %(message)s")
+    logging.getLogger("pimbs_hw").setLevel(logging.INFO)
     description = load_robot(robot)
     muscles = tuple(m.name for m in description.muscles)
     specs = parse_faults(list(faults), muscles)

@@ -62,13 +62,15 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
             force: bool) -> None:
     """Explain ROBOT (a built-in name, a .muscles.yaml or an MJCF .xml): joints driven and
     locked, muscles and boards, moment arms over the joint ranges, and whether every driven
-    joint can be turned both ways at every checked pose (exit status 1 where it cannot).
-    With --poses-file and --json: the muscle lengths and Jacobians at given poses."""
+    joint can be turned both ways at every checked pose. With --poses-file and --json: the
+    muscle lengths and Jacobians at given poses. A description that fails a check is still
+    explained, drawn and exported, the check marked where it fails; the exit status is then
+    1, with one line saying what failed (`simulate` and `collect` refuse it)."""
     import numpy as np
 
     from pimbs_arm.explain import describe
     from pimbs_arm.model import ArmModel
-    from pimbs_arm.routing import BOTH_WAYS_FIX, both_ways_problem, check_poses, routing_report
+    from pimbs_arm.routing import check_poses, routing_report, usable_problem
     from pimbs_calibration.description import load_robot
 
     if (poses_file is None) != (json_out is None):
@@ -78,26 +80,27 @@ def command(robot: str, plot: Path | None, pose: str | None, n_poses: int,
         check_output(json_out, force=force, what="JSON file", option="--json")
     if plot is not None:
         check_output(plot, force=force, what="picture", option="--plot")
-    arm = ArmModel(load_robot(robot, package_path))
-    if poses_file is not None:
-        _write_geometry(arm, poses_file, json_out)
-        return
+    # checked below, after everything is shown: a failing description is explained too
+    arm = ArmModel(load_robot(robot, package_path), check=False)
     other = None if pose is None else np.array(_parse_pose(pose, arm.joints))
     report = routing_report(arm, check_poses(arm, n_poses))
-    for line in describe(arm, report):
-        click.echo(line)
-    if plot is not None:
-        from pimbs_arm.picture import plot_routing
+    if poses_file is not None:
+        _write_geometry(arm, poses_file, json_out)
+    else:
+        for line in describe(arm, report):
+            click.echo(line)
+        if plot is not None:
+            from pimbs_arm.picture import plot_routing
 
-        home = np.clip(np.zeros(arm.n_joints), arm.joint_limits[:, 0], arm.joint_limits[:, 1])
-        panels = [("home pose", home)] + ([] if other is None else [("given pose", other)])
-        plot_routing(arm, plot, panels)
-        click.echo(f"\nwrote {plot}")
-    problem = both_ways_problem(arm, report)
+            home = np.clip(np.zeros(arm.n_joints), arm.joint_limits[:, 0],
+                           arm.joint_limits[:, 1])
+            panels = [("home pose", home)] + ([] if other is None else [("given pose", other)])
+            plot_routing(arm, plot, panels)
+            click.echo(f"\nwrote {plot}")
+    problem = usable_problem(arm, report)
     if problem:
-        raise click.ClickException(
-            f"{arm.robot.muscle_path}: some driven joints cannot be turned both ways at the "
-            f"poses listed above ({problem}); {BOTH_WAYS_FIX}")
+        raise click.ClickException(f"{arm.robot.muscle_path}: {problem}; until then `pimbs "
+                                   "simulate` and `pimbs collect` refuse this description")
 
 
 def _write_geometry(arm, poses_file: Path, json_out: Path) -> None:

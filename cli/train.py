@@ -22,7 +22,9 @@ JOINT_ANGLE_ROWS = 64
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--map", "map_kind", type=click.Choice(["atl", "al"]), default="atl",
               show_default=True, help="atl: (θ, f) → l; al: θ → l")
-@click.option("--loss", type=click.Choice(LOSSES), default=DEFAULT_LOSS, show_default=True)
+@click.option("--loss", type=click.Choice(LOSSES), default=DEFAULT_LOSS, show_default=True,
+              help="the paper's terms: length error (basic), h(0, 0) = 0 (const), the torque "
+                   "balance -Gᵀf = τ (pinn)")
 @click.option("--structure", type=click.Choice(["series-elastic", "mlp"]),
               default="series-elastic", show_default=True,
               help="series-elastic: l = g(θ) + e(f) (ATL-Map); mlp: the paper's network")
@@ -37,18 +39,19 @@ JOINT_ANGLE_ROWS = 64
                    "--robot) and learn its correction; skipped with a note if unavailable")
 @click.option("--n-train", type=click.IntRange(min=1), default=None,
               help="train on N rows drawn with --seed; evaluate on the rest (or on --eval) "
-                   "[default: 80 %% of the rows, drawn with --seed; the output names the "
+                   "[default: 80 % of the rows, drawn with --seed; the output names the "
                    "rows that evaluate]")
 @click.option("--eval", "eval_path", type=click.Path(path_type=Path), default=None,
               help="evaluate on this recording (same joints and muscles)")
-@click.option("--epochs", type=click.IntRange(min=1), default=20000, show_default=True)
+@click.option("--epochs", type=click.IntRange(min=1), default=20000, show_default=True,
+              help="full-batch training epochs (the paper's 20000)")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="seeds the training draw and the initial weights")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=1e-3,
               show_default=True, help="Adam learning rate (of the first epoch)")
 @click.option("--lr-schedule", "schedule", type=click.Choice(["exp", "constant", "cosine"]),
               default="exp", show_default=True,
-              help="exp: lr decays to 1 %% of --lr over the run; constant: the paper's Adam")
+              help="exp: lr decays to 1 % of --lr over the run; constant: the paper's Adam")
 @click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
               help="width of the two hidden layers (the paper's: 1000)")
 @click.option("--self-check/--no-self-check", "check", default=True, show_default=True,
@@ -62,7 +65,8 @@ JOINT_ANGLE_ROWS = 64
 @click.option("--robot", default=None,
               help="robot NAME|PATH: the prior, and τ where the recording's tau_gravity is "
                    "null [default: the recording's robot]")
-@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+              help="where torch trains (cuda needs a CUDA build of torch)")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="directory to write the model (model.safetensors + model.json); "
                    "without it nothing but the metrics is kept")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import quadprog
 
-from pimbs_arm.backend import ArmBackend
+from pimbs_arm.backend import ArmBackend, Skeleton, WirePath
 from pimbs_arm.backends.viapoints import ViaPointBackend
 from pimbs_arm.equilibrium import Equilibrium, solve_equilibrium
 from pimbs_calibration.description import RobotDescription, load_robot
@@ -60,7 +60,8 @@ class ArmModel:
     and the equilibrium are computed here, the same for every backend.
     """
 
-    def __init__(self, robot: RobotDescription, backend: ArmBackend | None = None) -> None:
+    def __init__(self, robot: RobotDescription, backend: ArmBackend | None = None, *,
+                 check: bool = True) -> None:
         self.robot = robot
         self.joints = robot.joints
         self.muscles = tuple(m.name for m in robot.muscles)
@@ -72,9 +73,10 @@ class ArmModel:
         self.backend = make_backend(robot) if backend is None else backend
         self.joint_limits = self.backend.joint_limits
         self._h0 = self.backend.kinematics(np.zeros(self.n_joints), jacobian=False).length
-        from pimbs_arm.routing import check_both_ways  # needs a built model
+        if check:  # `pimbs robot` explains a description that fails it (check=False)
+            from pimbs_arm.routing import check_both_ways  # needs a built model
 
-        check_both_ways(self)
+            check_both_ways(self)
 
     @classmethod
     def load(cls, name_or_path: str | Path) -> ArmModel:
@@ -94,9 +96,13 @@ class ArmModel:
         """The pinocchio model of a URDF robot (kept for callers that need pinocchio)."""
         return self.backend._model
 
-    def via_points(self, theta) -> list[np.ndarray]:
-        """World positions (k_i, 3) of the points each muscle's path runs through (m)."""
-        return self.backend.via_points(np.asarray(theta, dtype=np.float64))
+    def wire_paths(self, theta) -> list[WirePath]:
+        """Each muscle's path at a pose (branches, attachments; m), for pictures."""
+        return self.backend.wire_paths(np.asarray(theta, dtype=np.float64))
+
+    def skeleton(self, theta) -> Skeleton:
+        """The arm's bones and driven-joint anchors at a pose (m), for pictures."""
+        return self.backend.skeleton(np.asarray(theta, dtype=np.float64))
 
     def link_frames(self, theta) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """World (rotation (3, 3), position (3,)) of every link frame at a pose."""

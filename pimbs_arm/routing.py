@@ -86,20 +86,47 @@ def check_both_ways(arm: ArmModel) -> None:
 
 def both_ways_problem(arm: ArmModel, report: RoutingReport) -> str | None:
     """Which driven joints the routing cannot turn which way, at how many of the checked
-    poses, in one phrase (None when every joint turns both ways everywhere).
+    poses, in one phrase (None when every joint turns both ways everywhere). Joints no
+    muscle crosses anywhere are named together, first.
 
-    `pimbs robot` and `pimbs simulate` refuse a routing with the same words, so a user meets
-    one diagnosis whichever command they ran first.
+    `pimbs robot`, `pimbs simulate` and `pimbs collect` refuse a routing with the same words
+    (``usable_problem``), so a user meets one diagnosis whichever command they ran first.
     """
     bad = report.one_sided()
-    parts = []
+    uncrossed = [j for j in range(arm.n_joints) if not report.crosses()[:, j].any()]
+    parts = [f"no muscle crosses {', '.join(arm.joints[j] for j in uncrossed)}"] \
+        if uncrossed else []
     for j in np.flatnonzero(bad.any(axis=0)):
+        if j in uncrossed:
+            continue
         where = np.flatnonzero(bad[:, j])
-        sides = sorted({report.missing_side(p, j) for p in where})
-        parts.append(f"{arm.joints[j]} not towards {' or '.join(sides)} angles at "
-                     f"{len(where)} of {len(report.poses)} checked poses")
+        sides = {report.missing_side(p, j) for p in where}
+        turns = sorted(sides - {"either"})
+        words = ([f"towards {' or '.join(turns)} angles"] if turns else []) + (
+            ["at all"] if "either" in sides else [])
+        parts.append(f"{arm.joints[j]} not {' or '.join(words)} at {len(where)} of "
+                     f"{len(report.poses)} checked poses")
     return "; ".join(parts) or None
 
 
 #: what to do about a joint that cannot be turned both ways
 BOTH_WAYS_FIX = "route a muscle on the missing side or narrow that joint's range"
+
+
+def usable_problem(arm: ArmModel, report: RoutingReport | None = None) -> str | None:
+    """What keeps a description from being simulated or collected, in one phrase with what
+    to do (None: nothing). `pimbs simulate` and `pimbs collect` refuse with it and `pimbs
+    robot` marks it in its explanation, so no command accepts what another refuses.
+
+    The check: every driven joint turned both ways at the centre of the ranges, their
+    corners and seeded random poses (``check_poses``; ``report`` if already measured there).
+    """
+    report = routing_report(arm, check_poses(arm)) if report is None else report
+    problem = both_ways_problem(arm, report)
+    if problem is None:
+        return None
+    fix = BOTH_WAYS_FIX
+    if not report.crosses().any(axis=0).all():
+        fix += ("; a joint no muscle crosses is left out of 'joints' in a muscle file (then "
+                "held at 'lock' or its reference pose)")
+    return f"some driven joints cannot be turned both ways ({problem}); {fix}"

@@ -45,6 +45,12 @@ CONNECT_TIMEOUT_S, SIMULATED_CONNECT_TIMEOUT_S = 1.0, 5.0
 # nothing hangs (seen with the load average at 10 on 2 cores). Real boards have their own CPU
 # and keep the defaults; a silent simulated board is still found, within a second.
 SIMULATED_LIMITS = SafetyLimits(watchdog_s=1.0, silent_after_s=1.0)
+# A send waits for the other end to take the frame (a full USB-serial or SLCAN buffer). An
+# adapter or pty served by simulated boards in this process drains only when this process's
+# threads get the CPU and the GIL, which on a loaded machine can take longer than the 0.5 s
+# that means a lost link on real hardware (python-can's slcan reads one byte per call, so the
+# emulated adapter alone needs a good share of a core at full bus load).
+SIMULATED_SEND_TIMEOUT_S = 3.0
 
 
 def is_simulated(port: str) -> bool:
@@ -79,8 +85,9 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         robot = load_robot(robot)
     mock = None
     transport_kwargs = {}
-    if limits is None and (is_simulated(port) or served_in_process(port)):
-        limits = SIMULATED_LIMITS
+    if is_simulated(port) or served_in_process(port):
+        limits = SIMULATED_LIMITS if limits is None else limits
+        transport_kwargs["send_timeout_s"] = SIMULATED_SEND_TIMEOUT_S
     if connect_timeout_s is None:
         connect_timeout_s = (SIMULATED_CONNECT_TIMEOUT_S if is_simulated(port)
                              else CONNECT_TIMEOUT_S)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.protocol.board import (
     BoardLimits,
     BoardProtocol,
@@ -50,6 +51,10 @@ from pimbs_hw.transport.base import Frame, Transport
 
 _MODES = {"length": "length", "position": "length", "tension": "tension", "relax": "relax"}
 _NEEDED = ("position_m", "tension_n")  # a muscle's reading is fresh when both are new
+_JUDGED = 8  # frames a loss ratio must rest on before it can stop the arm
+# A silence this many times the limit is a board's, however long this program stalled
+# meanwhile: a stalled host delays the verdict, it never cancels it.
+SILENT_WHATEVER_THE_LOAD = 10.0
 
 
 @dataclass(frozen=True)
@@ -137,25 +142,30 @@ class _Rx:
         name = min(fields, key=lambda f: self.times[f])
         return now - self.times[name], name
 
-    def loss(self, now: float, window_s: float) -> tuple[float, int]:
-        """(fraction of frames lost, frames received) over the last ``window_s``.
+    def loss(self, now: float, window_s: float, starved_s: float = 0.0) -> tuple[float, int]:
+        """(fraction of frames lost, frames the judgement rests on) over the last
+        ``window_s``.
 
-        By counter gaps where the protocol counts its frames, else by the arrival rate
+        By counter gaps where the protocol counts its frames (the frames the board sent in
+        the window: those received and those their counters say were lost; counting only
+        those received would leave a lossy board too few to judge, e.g. 3 of a 20 ms
+        stream in 0.25 s at 75 % loss), else by the arrival rate
         against the status period over ``rate_window`` (judged only once a whole window has
-        been watched, and not during a silence, which is ``BoardSilent``'s to call).
+        been watched, and not during a silence, which is ``BoardSilent``'s to call), less
+        the ``starved_s`` of that window in which the host could hear nothing.
         """
         if self.counted:
             while self.gaps and now - self.gaps[0][0] > window_s:
                 self.lost -= self.gaps.popleft()[1]
             n = len(self.gaps)
-            return (self.lost / (self.lost + n) if n else 0.0), n
+            return (self.lost / (self.lost + n) if n else 0.0), n + self.lost
         window_s = self.rate_window(window_s)
         while self.arrivals and now - self.arrivals[0] > window_s:
             self.arrivals.popleft()
         if now - self.first < window_s or not self.arrivals or (
                 now - self.arrivals[-1] > 10 * self.period_s):
             return 0.0, len(self.arrivals)  # too early to judge, or silence: not loss
-        expected = window_s / self.period_s
+        expected = max(window_s - starved_s, self.period_s) / self.period_s
         return max(0.0, 1.0 - len(self.arrivals) / expected), int(expected)
 
     def rate_window(self, window_s: float) -> float:
@@ -210,6 +220,7 @@ class ArmDriver:
         self._last: list[tuple[str, float]] | None = None
         self.tripped: SafetyStop | None = None
         self.closed = False
+        self.host_lag = host_lag()  # when this process could not run (see ``_silence``)
         self._configure(connect_timeout_s)
 
     def protocol_of(self, i: int) -> BoardProtocol:
@@ -317,21 +328,47 @@ class ArmDriver:
         except SafetyStop as stop:
             self._trip(stop)
 
+    def _silence(self, heard: float, now: float) -> tuple[float, str]:
+        """How long a board last heard at ``heard`` has been silent while this host could
+        have heard it, and the words for a stop.
+
+        Wall time since its last frame, less the time this process could not run meanwhile
+        (``HostLag``: other work had every core, or a call held the GIL). A stalled host reads
+        frames late, and simulated boards in this process stall with it, so that time is the
+        host's, not the board's; a silence a real board makes while the host runs counts in
+        full. Past ``SILENT_WHATEVER_THE_LOAD`` times the limit the wall time
+        counts alone, so a dead board is named however loaded the machine is.
+        """
+        age = now - heard
+        lim = self.limits.silent_after_s
+        if age <= lim or age > SILENT_WHATEVER_THE_LOAD * lim:
+            return age, f"{age:.2f} s"
+        waited = self.host_lag.starved(heard, now)
+        if waited < 0.005:
+            return age, f"{age:.2f} s"
+        return age - waited, (f"{age - waited:.2f} s (and {waited:.2f} s more while this "
+                              "program could not run)")
+
     def _check(self, now: float) -> None:
         """Raise (after relaxing) the first limit any board breaks."""
         lim = self.limits
         for i, rx in enumerate(self._rx):
             where = self._where(i)
             age, name = rx.age(now)
-            if age > lim.silent_after_s:
+            silent, said = self._silence(now - age, now)
+            if silent > lim.silent_after_s:
                 what = "status" if self._proto[i].name == "pimbs-v1" else (  # type: ignore
                     f"{name.split('_')[0]} reading")
-                self._trip(BoardSilent(f"no {what} for {age:.2f} s (limit "
+                self._trip(BoardSilent(f"no {what} for {said} (limit "
                                        f"{lim.silent_after_s} s)", **where))
             if (n := rx.corrupt_in_last_second(now)) > lim.corrupt_per_s:
                 self._trip(CorruptFrames(f"{n} status frames failed their CRC in 1 s", **where))
             loss, n = rx.loss(now, lim.loss_window_s)
-            if n >= 4 and loss > lim.max_loss:
+            if n >= _JUDGED and loss > lim.max_loss and not rx.counted:  # counters: no clock
+                window = rx.rate_window(lim.loss_window_s)
+                loss, n = rx.loss(now, lim.loss_window_s,
+                                  self.host_lag.starved(now - window, now))
+            if n >= _JUDGED and loss > lim.max_loss:
                 how = "counter gaps" if rx.counted else "arrival rate"
                 self._trip(FramesDropped(f"{loss:.0%} of status frames lost in the last "
                                          f"{rx.rate_window(lim.loss_window_s):g} s ({how})",
@@ -357,11 +394,11 @@ class ArmDriver:
                 self._trip(TensionLimit(f"{tension:.1f} N > {lim.tension_margin:g} x ceiling "
                                         f"{self.f_max[i]:.1f} N", **where))
         for j, rx in enumerate(self._joint_rx):
-            if now - rx.times["angle_rad"] > lim.silent_after_s:
+            silent, said = self._silence(rx.times["angle_rad"], now)
+            if silent > lim.silent_after_s:
                 self._trip(BoardSilent(f"joint encoder {self.robot.joints[j]} (frame id "
-                                       f"0x{0x240 + j:03X}) silent for "
-                                       f"{now - rx.times['angle_rad']:.2f} s",
-                                       port=self.transport.port))
+                                       f"0x{0x240 + j:03X}) silent for {said} (limit "
+                                       f"{lim.silent_after_s} s)", port=self.transport.port))
 
     def read_state(self, timeout: float = 0.05) -> ArmState:
         """Latest reading of every board, waiting up to ``timeout`` s for fresh frames."""
@@ -574,6 +611,8 @@ class ArmDriver:
             return
         self._relax_quietly()
         self.closed = True
+        for proto in self.protocols:
+            proto.close()
         self.transport.close()
 
     def __enter__(self) -> ArmDriver:

@@ -38,7 +38,8 @@ class SafetyStop(HardwareError):
 
 
 class BoardSilent(SafetyStop):
-    """No status frame from a board for longer than ``silent_after_s``."""
+    """No status frame from a board for longer than ``silent_after_s`` of the time the host
+    could have heard one (``ArmDriver._silence``)."""
 
 
 class FramesDropped(SafetyStop):

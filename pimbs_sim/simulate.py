@@ -25,7 +25,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
-from pimbs_arm.poses import ATL_F_MIN, atl_floor_range, hold_ceiling, plan_poses
+from pimbs_arm.poses import ATL_F_MIN, PosePlan, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_recording.format import make_meta
 from pimbs_sim.effects import T_REF, Effect, World
 from pimbs_sim.sensors import SensorModel, SensorNoise, SensorReadout, ThermalModel
@@ -47,17 +47,19 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
              sample_period: float = 4.0, noise_seed: int | None = None,
              start: np.datetime64 = START,
              progress: Callable[[int], None] | None = None,
-             sensors: SensorModel | None = None,
+             poses: PosePlan | None = None, sensors: SensorModel | None = None,
              ) -> tuple[dict[str, np.ndarray], dict]:
     """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording.
 
     ``noise_seed`` draws other sensor noise for the same poses (default: from ``seed``), so a
     "real" and a reference recording of the same poses need not share their noise.
     ``progress(done)`` is called every 100 samples and at the end (a 5-DOF arm takes
-    about 0.4 ms per sample: 100 000 samples run for most of a minute).
+    about 0.4 ms per sample: 100 000 samples run for most of a minute). ``poses``: a plan
+    to simulate instead of the seeded draws (``pimbs_arm.poses_file``).
     ``sensors`` says how the boards read the arm (:mod:`pimbs_sim.sensors`: noise, motor
-    heating, latency, hysteresis); the default ``SensorModel()`` is the plain sensor of
-    ``pimbs simulate``, whose recordings it leaves unchanged.
+    heating — how closely temperature follows load —, latency, hysteresis); the default
+    ``SensorModel()`` is the plain sensor of ``pimbs simulate``, whose recordings it leaves
+    unchanged.
     """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
@@ -68,7 +70,7 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
     thermal = sensors.thermal
     readout = SensorReadout(sensors, arm.n_muscles)
 
-    plan = plan_poses(arm, n_samples, seed, map_kind)
+    plan = plan_poses(arm, n_samples, seed, map_kind) if poses is None else poses
     theta_cmd = plan.poses
     n, m = arm.n_joints, arm.n_muscles
     out = {k: np.zeros((n_samples, w)) for k, w in

@@ -227,3 +227,36 @@ def test_length_hessian_matches_finite_differences(arm):
     fd = np.stack([(arm.muscle_jacobian(theta + eps * e) - arm.muscle_jacobian(theta - eps * e)).T
                    @ weight / (2 * eps) for e in np.eye(arm.n_joints)], axis=1)
     np.testing.assert_allclose(arm.backend.length_hessian(theta, weight), fd, atol=1e-7)
+
+
+ACME = Path(__file__).resolve().parents[1] / "fixtures/foreign_arm/acme_left_arm.muscles.yaml"
+
+
+def test_via_points_that_meet_give_numbers_not_warnings():
+    """Two via points on different links meet where a wire passes through its joint's axis
+    (ACME's shoulder flexor with the shoulder rolled by -π): that segment has length 0 and
+    no direction. Lengths, Jacobian and Hessian stay finite and right, with no warning."""
+    arm = ArmModel.load(ACME)
+    backend = arm.backend
+    theta = np.array([0.0, -np.pi, -0.5])
+    with np.errstate(all="raise"):  # a 0/0 anywhere in these numerics is an error here
+        kin = backend.kinematics(theta)
+        hessian = backend.length_hessian(theta, np.full(arm.n_muscles, 50.0))
+        assert np.isfinite(arm.equilibrium("length", arm.length(theta, np.full(
+            arm.n_muscles, 20.0)), theta0=theta).theta).all()
+    assert (kin.cache.seg_len == 0).any(), "the pose no longer makes two via points meet"
+    assert np.isfinite(kin.jacobian).all() and np.isfinite(hessian).all()
+    # the length is the sum of the straight segments between the via points as placed
+    paths = [wire.attachments for wire in backend.wire_paths(theta)]
+    want = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in paths]
+    np.testing.assert_allclose(kin.length, want, rtol=1e-12, atol=1e-15)
+    # the muscles whose via points meet get the middle of their one-sided derivatives;
+    # every other muscle's Jacobian is what it is a little away from there
+    meet = np.unique(backend._seg_owner[kin.cache.seg_len == 0])
+    assert "sh_flexor" in [arm.muscles[i] for i in meet]
+    step = np.array([0.0, 1e-7, 0.0])
+    before, after = (backend.kinematics(theta - step).jacobian,
+                     backend.kinematics(theta + step).jacobian)
+    np.testing.assert_allclose(kin.jacobian[meet], (before[meet] + after[meet]) / 2, atol=1e-6)
+    others = np.setdiff1d(np.arange(arm.n_muscles), meet)
+    np.testing.assert_allclose(kin.jacobian[others], after[others], atol=1e-6)

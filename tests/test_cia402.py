@@ -190,7 +190,7 @@ def test_every_fault_ends_in_a_named_state_the_drive_reported(spec, stop, says):
             driver.command("tension", 60.0)
 
 
-def test_ctrl_c_leaves_drives_at_the_floor_then_their_heartbeat_watchdog_acts():
+def test_ctrl_c_leaves_drives_at_the_floor_then_their_own_watchdogs_act():
     with open_arm("virtual", ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
         with pytest.raises(KeyboardInterrupt):
             with driver:
@@ -200,7 +200,8 @@ def test_ctrl_c_leaves_drives_at_the_floor_then_their_heartbeat_watchdog_acts():
         # the last command each drive took: torque mode at the holding floor (10 N x 10/N)
         assert wait_until(lambda: all(b.targets.get((0x6071, 0)) == 100 and b.mode_op == 10
                                       for b in mock.boards))
-        # no host heartbeat any more: each drive's consumer (1 s) faults it, EMCY 0x8130
+        # no host SYNC nor heartbeat any more: each drive's SYNC supervision (0.5 s) or its
+        # heartbeat consumer (1 s) faults it, EMCY 0x8100 or 0x8130
         assert wait_until(lambda: all(b.state == "Fault" for b in mock.boards), timeout=3.0)
         assert all(b.error_register & 0x10 for b in mock.boards)  # communication error
         assert mock.snapshot().modes == ("off",) * 4  # power stage off: slack, not tense
@@ -340,21 +341,25 @@ def test_simulated_quick_stop_ends_as_its_option_code_says(option, end):
 
 
 def test_a_drive_that_does_not_take_the_commanded_mode_is_named():
-    # decoding only: the drive's TPDO2 (mode display 0x6061, torque actual) as it would
-    # answer a length command while staying in cyclic synchronous torque (mode 10)
+    # decoding only: the drive's TPDO with the mode display 0x6061 (and the statusword,
+    # 'Operation enabled') as it would answer a length command while staying in cyclic
+    # synchronous torque (mode 10)
     proto = load_robot_protocol(ROBOT)
-    proto._enabled[0], proto._patience_s = True, 0.1  # 10 PDO periods of 10 ms
+    proto._enabled[0], proto._patience_s = True, 0.2  # 10 PDO periods of 20 ms
     proto.command(0, "length", 0.01)
-    tpdo2 = next(m for n, m in proto.tpdos[0] if n == 2)
-    frame = bytes([10]) + (200).to_bytes(2, "little", signed=True)
-    updates = [proto.decode(tpdo2.cob_id, frame)[0] for _ in range(11)]
-    assert all(u.stop is None for u in updates[:10]) and updates[0].tension_n == 20.0
+    tpdo = next(m for _, m in proto.tpdos[0] if 0x6061 in [v.index for v in m.map])
+    assert [v.index for v in tpdo.map] == [0x6041, 0x6061]  # packed: statusword, mode
+
+    def frame(mode: int) -> bytes:
+        return (0x0237).to_bytes(2, "little") + bytes([mode])
+
+    updates = [proto.decode(tpdo.cob_id, frame(10))[0] for _ in range(11)]
+    assert all(u.stop is None for u in updates[:10])
     assert updates[10].stop is BoardFault
     assert updates[10].note == ("drive did not take mode of operation 8 (cyclic synchronous "
                                "position): 0x6061 still reports 10 (cyclic synchronous torque) "
                                "after 11 PDOs")
-    frame = bytes([8]) + (200).to_bytes(2, "little", signed=True)
-    assert proto.decode(tpdo2.cob_id, frame)[0].stop is None  # it switched: all is well
+    assert proto.decode(tpdo.cob_id, frame(8))[0].stop is None  # it switched: all is well
 
 
 def load_robot_protocol(path):

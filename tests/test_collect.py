@@ -208,7 +208,13 @@ def test_concealed_friction_has_definite_approaches_and_is_diagnosed(arm, tmp_pa
                    "--mock-speed", 5)
     assert res.exit_code == 0, res.output
     real = read_recording(out)
-    planned = np.array([CollectionPlan(arm, n, seed).target(i).approach for i in range(n)])
+    # with friction the arm can run off a pose; the collection then gives that one pose up,
+    # says so, and goes on (how often depends on how the solver's lag meets the servo, so
+    # it may differ from run to run): the rows recorded are what is checked
+    given_up = n - real.n_rows
+    assert given_up <= 2 and res.output.count("given up") == given_up, res.output
+    plan = CollectionPlan(arm, n, seed)
+    planned = np.array([plan.target(int(i)).approach for i in real.sample])
     assert set(np.unique(real.approach)) == {-1, 1}
     assert (real.approach > 0).sum(0).min() >= 5 and (real.approach < 0).sum(0).min() >= 5
     assert (real.approach == planned).mean() > 0.95  # recorded = the planned last motion

@@ -107,9 +107,12 @@ def test_cli_json_plots_and_corrected_recording(tmp_path, arm):
                                   str(out), "--plots", str(tmp_path / "plots"),
                                   "--corrected", str(corrected)])
     assert r.exit_code == 0, r.output
-    assert "tendon_friction" in r.output
     result = json.loads(out.read_text())
     assert result["effects"][0]["name"] == "tendon_friction"
+    # the heading names the muscles its parameters belong to, not the joints it loads
+    muscles = result["effects"][0]["muscles"]
+    assert muscles and result["effects"][0]["joints"]
+    assert f"1. tendon_friction ({', '.join(muscles)})  ΔBIC" in r.output, r.output
     assert {"before", "after"} <= set(result["fit"])
     assert len(list((tmp_path / "plots").glob("*.png"))) == 3
     # the corrected recording obeys the torque balance far better than the raw one

@@ -73,6 +73,7 @@ def test_cli_estimate_reports_degrees_beside_the_geometric_model(model, tmp_path
     assert len(out["theta_estimate"]) == out["n_samples"] == 40
     assert png.read_bytes()[:4] == b"\x89PNG"
     assert "geometric" in res.output
+    assert f"wrote {j}:" in res.output and f"wrote {png}:" in res.output  # says what it wrote
     again = CliRunner().invoke(main, ["estimate", str(model_dir), str(data), "--json", str(j)])
     assert again.exit_code == 1 and "--force" in again.output
 

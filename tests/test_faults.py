@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -35,13 +37,18 @@ LIMITS = SafetyLimits(watchdog_s=0.6)  # as for any simulated arm: a loaded host
 def test_fault_gives_named_stop_and_relaxed_arm(port, spec, stop):
     fault = parse_fault(spec)
     with open_arm(port, ROBOT, faults=[spec], speed=SPEED, limits=LIMITS) as (driver, mock):
+        sample, detect_by = -1, None
         with pytest.raises(stop) as err:
-            for sample in range(10):
+            # up to the fault's sample, then at it until detected: frame loss and heating
+            # need a moment, which a loaded machine stretches (the deadline is far beyond)
+            while detect_by is None or time.monotonic() < detect_by:
+                sample = min(sample + 1, fault.sample)
+                if sample == fault.sample and detect_by is None:
+                    detect_by = time.monotonic() + 10.0
                 mock.set_sample(sample)
                 driver.command("tension", 60.0)
                 driver.dwell(0.15)
-                # detected at its sample, or (frame loss and heating need a moment) just after
-                assert sample < fault.sample + 3, "fault not detected"
+            pytest.fail("fault not detected")
         assert sample >= fault.sample, "fault fired too early"
         if fault.muscle is None:
             assert err.value.port == mock.port and mock.port in str(err.value)
@@ -59,11 +66,16 @@ def test_fault_gives_named_stop_and_relaxed_arm(port, spec, stop):
 @pytest.mark.parametrize("spec, trigger", [("overheat:m2@0.3s", "seconds"),
                                            ("overheat:m2@60c", "cycles")])
 def test_time_and_cycle_triggers(spec, trigger):
-    with open_arm("virtual", ROBOT, faults=[spec], speed=SPEED, limits=LIMITS) as (driver, _):
+    with open_arm("virtual", ROBOT, faults=[spec], speed=SPEED, limits=LIMITS) as (driver, mock):
         driver.command("tension", 40.0)
-        driver.dwell(0.15)  # not yet
         with pytest.raises(Overheat, match="muscle m2"):
-            driver.dwell(2.0)
+            driver.dwell(10.0)
+        # not before its time, on the simulated boards' own clock and cycle count (however
+        # long a loaded machine took to start them)
+        if trigger == "seconds":
+            assert mock._clock() - mock._t0 >= 0.3
+        else:
+            assert mock._cycles >= 60
     assert getattr(parse_fault(spec), trigger) is not None
 
 

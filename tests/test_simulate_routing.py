@@ -1,4 +1,5 @@
-"""`pimbs simulate` refuses a muscle file `pimbs robot` rejects, with the same diagnosis."""
+"""`pimbs simulate` and `pimbs collect` refuse a muscle file `pimbs robot` rejects, with the
+same diagnosis."""
 
 from __future__ import annotations
 
@@ -35,9 +36,14 @@ def test_simulate_refuses_a_joint_no_muscle_turns_one_way(tmp_path, monkeypatch)
     # the same diagnosis as `pimbs robot`: the joint, the side, how many checked poses
     problem = said[said.index("(l_elbow_pitch"):said.index("); route")]
     assert problem.startswith("(l_elbow_pitch not towards negative angles at ")
-    assert (f"Error: {path}: some driven joints cannot be turned both ways {problem}), as "
-            f"`pimbs robot {path}` shows with the poses; route a muscle on the missing side "
-            "or narrow that joint's range") == res.output.strip()
+    refusal = (f"Error: {path}: some driven joints cannot be turned both ways {problem}); "
+               "route a muscle on the missing side or narrow that joint's range; `pimbs robot "
+               f"{path}` shows the moment arms and the poses")
+    assert refusal == res.output.strip()
+    # collect runs the very checks simulate runs: the same line, before any board is touched
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot", str(path),
+                                    "--samples", "5", "--out", "c.parquet"])
+    assert res.exit_code == 1 and res.output.strip() == refusal, res.output
     assert _files(tmp_path) == before  # no recording written
 
 

@@ -12,7 +12,12 @@ and the gravity derivative (from ``qfrc_bias``); the equilibrium solver uses the
 choose Newton steps, its stopping test is on the exact gradient.
 
 Joints that are not driven stay at their locked value (the description's ``locked``, default
-``qpos0``); ball and free joints stay at ``qpos0``.
+``qpos0``); ball and free joints stay at ``qpos0``. A joint that an ``<equality><joint>``
+couples to a driven one (the description's ``couplings``) is placed where the equality puts
+it, exactly, before MuJoCo runs: lengths and gravity are those of the coupled model, and the
+Jacobian and gravity with respect to the driven joints run through the coupling by the chain
+rule, ``G = ten_J · S`` and ``g = Sᵀ qfrc_bias`` with ``S`` = d(every moved joint)/d(driven
+joints) (the quartic's slope along each chain of leaders).
 """
 
 from __future__ import annotations
@@ -23,13 +28,15 @@ import threading
 import mujoco
 import numpy as np
 
-from pimbs_arm.backend import Kinematics
+from pimbs_arm.backend import Kinematics, Skeleton, WirePath
+from pimbs_calibration.coupling import CoupledJoints
 from pimbs_calibration.description import RobotDescription
 from pimbs_calibration.mjcf import compile_model, joint_names, tendon_names
 from pimbs_calibration.urdf_model import UNLIMITED
 
 _FD_STEP = 1e-6  # rad: central differences of ten_J / qfrc_bias (error ~ step² and 1e-10)
 _PULLEY = -2  # wrap_obj of a pulley entry in MuJoCo's wrap list (it has no point)
+_SITE = -1  # wrap_obj of a site (a geom's tangent points carry the geom's id)
 
 
 class MujocoBackend:
@@ -53,6 +60,11 @@ class MujocoBackend:
         jid = np.array([names.index(j) for j in self.joints], dtype=int)
         self._qadr = m.jnt_qposadr[jid]
         self._dof = m.jnt_dofadr[jid]
+        # the driven joints and the followers they move (qpos / dof indices)
+        self._coupled = CoupledJoints(
+            self.joints, self.robot.couplings,
+            {n: int(m.jnt_qposadr[i]) for i, n in enumerate(names)},
+            {n: int(m.jnt_dofadr[i]) for i, n in enumerate(names)})
         tendons = tendon_names(m)
         self._tendon = np.array([tendons.index(mu.name) for mu in self.robot.muscles], dtype=int)
         self._q0 = m.qpos0.copy()
@@ -125,10 +137,12 @@ class MujocoBackend:
 
     # ----------------------------------------------------------------------- MuJoCo passes
     def _position(self, theta: np.ndarray) -> mujoco.MjData:
-        """Run MuJoCo's position stage at theta (caller holds the lock)."""
+        """Run MuJoCo's position stage at theta, followers where their couplings put them
+        (caller holds the lock)."""
         d = self._data
         d.qpos[:] = self._q0
         d.qpos[self._qadr] = theta
+        self._coupled.place(d.qpos)
         d.qvel[:] = 0.0
         mujoco.mj_kinematics(self.mj_model, d)
         mujoco.mj_comPos(self.mj_model, d)
@@ -136,18 +150,22 @@ class MujocoBackend:
         return d
 
     def _ten_j(self, d: mujoco.MjData) -> np.ndarray:
-        """``ten_J`` (M, N) of the muscles' tendons and the driven dofs. MuJoCo stores it
-        sparse (rows of the model's ``ten_J_rowadr``/``rownnz``/``colind``) or, in older
-        releases, dense (ntendon, nv): both are read."""
+        """``ten_J`` (M, N) of the muscles' tendons with respect to the driven joints (through
+        the couplings). MuJoCo stores it sparse (rows of the model's ``ten_J_rowadr``/
+        ``rownnz``/``colind``) or, in older releases, dense (ntendon, nv): both are read."""
         m = self.mj_model
         values = np.asarray(d.ten_J).reshape(-1)
         if not hasattr(m, "ten_J_rowadr"):
-            return values.reshape(m.ntendon, m.nv)[np.ix_(self._tendon, self._dof)]
-        dense = np.zeros((m.ntendon, m.nv))
-        for t in self._tendon:
-            adr, nnz = m.ten_J_rowadr[t], m.ten_J_rownnz[t]
-            dense[t, m.ten_J_colind[adr:adr + nnz]] = values[adr:adr + nnz]
-        return dense[np.ix_(self._tendon, self._dof)]
+            dense = values.reshape(m.ntendon, m.nv)
+        else:
+            dense = np.zeros((m.ntendon, m.nv))
+            for t in self._tendon:
+                adr, nnz = m.ten_J_rowadr[t], m.ten_J_rownnz[t]
+                dense[t, m.ten_J_colind[adr:adr + nnz]] = values[adr:adr + nnz]
+        if not self.robot.couplings:
+            return dense[np.ix_(self._tendon, self._dof)]
+        S = self._coupled.jacobian(d.qpos)
+        return dense[np.ix_(self._tendon, self._coupled.columns)] @ S
 
     def kinematics(self, theta: np.ndarray, jacobian: bool = True) -> Kinematics:
         """MuJoCo's absolute tendon lengths (M,) and, if asked, ``ten_J`` (M, N)."""
@@ -171,11 +189,14 @@ class MujocoBackend:
             return self._bias(np.asarray(theta, dtype=np.float64))
 
     def _bias(self, theta: np.ndarray) -> np.ndarray:
-        """``qfrc_bias`` with qvel = 0 (gravity only) at theta, on the driven dofs."""
+        """``qfrc_bias`` with qvel = 0 (gravity only) at theta, on the driven joints (a
+        follower's share through its coupling: Sᵀ qfrc_bias, by virtual work)."""
         m, d = self.mj_model, self._position(theta)
         mujoco.mj_comVel(m, d)  # qvel = 0: zero velocities, as mj_fwdVelocity would leave
         mujoco.mj_rne(m, d, 0, d.qfrc_bias)  # what mj_fwdVelocity stores in qfrc_bias
-        return np.array(d.qfrc_bias[self._dof])
+        if not self.robot.couplings:
+            return np.array(d.qfrc_bias[self._dof])
+        return d.qfrc_bias[self._coupled.columns] @ self._coupled.jacobian(d.qpos)
 
     def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
         """d g / d theta (N, N) by central differences of ``qfrc_bias``."""
@@ -194,9 +215,11 @@ class MujocoBackend:
         return float(self.mj_model.body_mass[self.moving_bodies()].sum())
 
     def moving_bodies(self) -> np.ndarray:
-        """Ids of the bodies carried by a driven joint (their subtrees)."""
+        """Ids of the bodies carried by a driven joint or a follower (their subtrees)."""
         m = self.mj_model
-        carriers = set(m.jnt_bodyid[[joint_names(m).index(j) for j in self.joints]].tolist())
+        names = joint_names(m)
+        moved = [*self.joints, *(c.follower for c in self.robot.couplings)]
+        carriers = set(m.jnt_bodyid[[names.index(j) for j in moved]].tolist())
         moving = []
         for b in range(1, m.nbody):
             a = b
@@ -206,18 +229,64 @@ class MujocoBackend:
                 moving.append(b)
         return np.array(moving, dtype=int)
 
-    # ------------------------------------------------------------------------- for plots
-    def via_points(self, theta: np.ndarray) -> list[np.ndarray]:
-        """World positions (k_i, 3) of each tendon's sites and wrap tangent points (m)."""
+    # ---------------------------------------------------------------------- for pictures
+    def wire_paths(self, theta: np.ndarray) -> list[WirePath]:
+        """Each muscle's tendon path as MuJoCo computed it at a pose: its branches (a pulley
+        starts a new one; MuJoCo's wrap list marks it with ``wrap_obj`` -2), the surface arc
+        between the two tangent points where it wraps a sphere or cylinder, its sites."""
+        m = self.mj_model
         with self._lock:
             d = self._position(np.asarray(theta, dtype=np.float64))
-            xpos = np.asarray(d.wrap_xpos).reshape(-1, 3)
-            obj = np.asarray(d.wrap_obj).reshape(-1)
-            out = []
-            for t in self._tendon:
-                sl = slice(d.ten_wrapadr[t], d.ten_wrapadr[t] + d.ten_wrapnum[t])
-                out.append(xpos[sl][obj[sl] != _PULLEY].copy())
-        return out
+            xpos = np.asarray(d.wrap_xpos).reshape(-1, 3).copy()
+            obj = np.asarray(d.wrap_obj).reshape(-1).copy()
+            geoms = (d.geom_xpos.copy(), d.geom_xmat.reshape(-1, 3, 3).copy())
+            adr, num = d.ten_wrapadr.copy(), d.ten_wrapnum.copy()
+        paths = []
+        for t in self._tendon:
+            branches: list[np.ndarray] = []
+            points: list[np.ndarray] = []
+            k, end = int(adr[t]), int(adr[t] + num[t])
+            while k < end:
+                if obj[k] == _PULLEY:
+                    branches.append(np.array(points))
+                    points = []
+                elif obj[k] >= 0 and points and k + 1 < end and obj[k + 1] == obj[k]:
+                    points += _wrap_arc(m, geoms, int(obj[k]), points[-1], xpos[k], xpos[k + 1])
+                    k += 1  # a wrapped geom contributes its two tangent points at once
+                else:
+                    points.append(xpos[k])
+                k += 1
+            branches.append(np.array(points))
+            sites = xpos[adr[t]:end][obj[adr[t]:end] == _SITE]
+            paths.append(WirePath([b for b in branches if len(b)], sites.copy()))
+        return paths
+
+    def skeleton(self, theta: np.ndarray) -> Skeleton:
+        """The moving part of the body tree at a pose as MuJoCo places it: a bone from where
+        each body's parent turns to where it turns (a body's first joint's anchor
+        ``xanchor``, else its frame ``xpos``), a body without children drawn on to twice its
+        centre of mass (``xipos``); the driven joints at their anchors. Bodies no driven
+        joint moves (a trunk, a floor) are left out: their frames may lie anywhere, e.g. a
+        whole body's at the feet."""
+        m = self.mj_model
+        names = joint_names(m)
+        with self._lock:
+            d = self._position(np.asarray(theta, dtype=np.float64))
+            anchor, key, com = d.xanchor.copy(), d.xpos.copy(), d.xipos.copy()
+        jointed = np.flatnonzero(m.body_jntnum > 0)
+        key[jointed] = anchor[m.body_jntadr[jointed]]
+        parent = m.body_parentid
+        leaf = np.bincount(parent[1:], minlength=m.nbody) == 0
+        bones = []
+        for b in sorted(self.moving_bodies().tolist()):
+            if parent[b] > 0:
+                bones.append((key[parent[b]], key[b]))
+            if leaf[b] and m.body_mass[b] > 0:
+                bones.append((key[b], 2 * com[b] - key[b]))
+        bones = [(a, e) for a, e in bones if np.linalg.norm(e - a) > 1e-9]
+        joints = {j: anchor[names.index(j)] for j in self.joints}
+        focus = np.array([p for bone in bones for p in bone] + list(joints.values()))
+        return Skeleton(bones, joints, focus)
 
     def link_frames(self, theta: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """World (rotation (3, 3), position (3,)) of every body of the MJCF at a pose."""
@@ -228,15 +297,50 @@ class MujocoBackend:
                                                    d.xpos[b].copy())
                     for b in range(1, m.nbody)}
 
-    def body_parents(self) -> dict[str, str]:
-        """Body name -> parent body name (the world omitted): the skeleton for a picture."""
-        m = self.mj_model
 
-        def name(b: int) -> str:
-            return m.body(b).name or f"body{b}"
+def _wrap_arc(m: mujoco.MjModel, geoms: tuple[np.ndarray, np.ndarray], geom: int,
+              before: np.ndarray, t0: np.ndarray, t1: np.ndarray) -> list[np.ndarray]:
+    """Points along a tendon's wrap over ``geom`` from tangent point ``t0`` to ``t1``: a great
+    circle on a sphere, a helix on a cylinder (MuJoCo wraps in the plane across its axis and
+    rises linearly). The wire reaches ``t0`` from ``before`` along the surface's tangent, so
+    it goes on round the same way (the long way round where MuJoCo's side site asks it to)."""
+    centre, rot = geoms[0][geom], geoms[1][geom]
+    kind = int(m.geom_type[geom])
+    if kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+        u, v, heading = t0 - centre, t1 - centre, t0 - before
+        normal = np.cross(u, v)
+        if np.linalg.norm(normal) < 1e-12 * np.dot(u, u):
+            normal = np.cross(u, heading)  # opposite points: the plane of arrival decides
+        if np.linalg.norm(normal) == 0:
+            return [t0, t1]
+        normal /= np.linalg.norm(normal)
+        angle = float(np.arctan2(np.dot(np.cross(u, v), normal), np.dot(u, v)))
+        if np.dot(np.cross(normal, u), heading) < 0:
+            normal, angle = -normal, 2 * np.pi - angle
+        steps = _arc_steps(angle)
+        radius = np.linspace(np.linalg.norm(u), np.linalg.norm(v), steps)
+        unit = u / np.linalg.norm(u)
+        return [centre + r * (unit * np.cos(a) + np.cross(normal, unit) * np.sin(a))
+                for a, r in zip(np.linspace(0, angle, steps), radius, strict=True)][:-1] + [t1]
+    if kind == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+        a, b, heading = rot.T @ (t0 - centre), rot.T @ (t1 - centre), rot.T @ (t0 - before)
+        phi0, phi1 = np.arctan2(a[1], a[0]), np.arctan2(b[1], b[0])
+        turn = -np.sin(phi0) * heading[0] + np.cos(phi0) * heading[1]  # > 0: anticlockwise
+        if abs(turn) < 1e-12:
+            sweep = (phi1 - phi0 + np.pi) % (2 * np.pi) - np.pi  # no heading: the short way
+        else:
+            sweep = (phi1 - phi0) % (2 * np.pi) if turn > 0 else -((phi0 - phi1) % (2 * np.pi))
+        s = np.linspace(0, 1, _arc_steps(sweep))
+        radius = np.hypot(a[0], a[1]) + s * (np.hypot(b[0], b[1]) - np.hypot(a[0], a[1]))
+        local = np.stack([radius * np.cos(phi0 + s * sweep), radius * np.sin(phi0 + s * sweep),
+                          a[2] + s * (b[2] - a[2])], axis=1)
+        return [*(centre + local[:-1] @ rot.T), t1]
+    return [t0, t1]
 
-        return {name(b): name(int(m.body_parentid[b])) for b in range(1, m.nbody)
-                if m.body_parentid[b] > 0}
+
+def _arc_steps(angle: float) -> int:
+    """Points on a wrapped arc: one every 5 degrees, at least the two ends."""
+    return max(2, int(np.ceil(abs(angle) / np.radians(5))) + 1)
 
 
 def _central_difference(f, theta: np.ndarray) -> np.ndarray:

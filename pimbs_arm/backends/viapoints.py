@@ -13,8 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from pimbs_arm.backend import Kinematics
+from pimbs_arm.backend import Kinematics, Skeleton, WirePath
 from pimbs_calibration.description import RobotDescription, reduced_model
+from pimbs_calibration.urdf_model import link_centres, parse_joints
 
 
 @dataclass
@@ -32,6 +33,19 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
     b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+
+
+def _directions(d: np.ndarray, seg_len: np.ndarray) -> np.ndarray:
+    """(S, 3) unit vectors along the segments ``d`` (S, 3) of lengths ``seg_len``.
+
+    Two via points on different links can meet (a wire through its joint's axis: in the
+    ACME fixture the elbow flexor's near an elbow angle of -1.08 rad, inside the URDF's
+    limits, which the equilibrium solver may explore). There the segment has length 0 and
+    no direction: its length is not differentiable, and the middle of its one-sided
+    derivatives, 0, is used (direction 0, no curvature) instead of dividing 0 by 0, which
+    would turn the muscle's Jacobian and the solver's Hessian into NaN.
+    """
+    return np.divide(d, seg_len[:, None], out=np.zeros_like(d), where=seg_len[:, None] > 0)
 
 
 class ViaPointBackend:
@@ -149,7 +163,7 @@ class ViaPointBackend:
             p = self._world_points()
         d = p[self._seg_b] - p[self._seg_a]
         seg_len = np.sqrt(np.einsum("si,si->s", d, d))
-        paths = _Paths(seg_len=seg_len, u=d / seg_len[:, None])
+        paths = _Paths(seg_len=seg_len, u=_directions(d, seg_len))
         if jacobian:
             pe = p[self._end_points]
             paths.omega = J[3:]
@@ -164,14 +178,32 @@ class ViaPointBackend:
         trans = np.array([data.oMi[j].translation for j in self._joint_ids])[self._via_joint]
         return np.einsum("vij,vj->vi", rot, self._via_local) + trans
 
-    def via_points(self, theta) -> list[np.ndarray]:
-        """World positions (k_i, 3) of each muscle's via points at one pose (m)."""
+    def wire_paths(self, theta) -> list[WirePath]:
+        """Each muscle's wire at a pose: one straight polyline through its via points (m)."""
         theta = np.asarray(theta, dtype=np.float64)
         with self._lock:
             pin.forwardKinematics(self._model, self._data, self._q(theta))
             p = self._world_points()
         counts = [len(m.path) for m in self.robot.muscles]
-        return np.split(p, np.cumsum(counts)[:-1])
+        return [WirePath([points], points) for points in np.split(p, np.cumsum(counts)[:-1])]
+
+    def skeleton(self, theta) -> Skeleton:
+        """The URDF's link tree at a pose: a bone from each parent link's frame to its child's
+        (locked joints included), a link without children to twice its centre of mass; each
+        driven joint at its child link's frame (where a URDF joint sits). Every link is framed
+        in the view."""
+        text = self.robot.urdf_path.read_text()
+        urdf = parse_joints(self.robot.urdf_path, text)
+        centres = link_centres(text)
+        frames = self.link_frames(theta)
+        parents = {j.parent for j in urdf.values()}
+        bones = [(frames[j.parent][1], frames[j.child][1]) for j in urdf.values()
+                 if j.parent in frames and j.child in frames]
+        bones += [(p, p + 2 * rot @ centres[name]) for name, (rot, p) in frames.items()
+                  if name not in parents and name in centres]
+        joints = {name: frames[urdf[name].child][1] for name in self.joints}
+        focus = np.array([*(p for _, p in frames.values()), *(e for b in bones for e in b)])
+        return Skeleton(bones, joints, focus)
 
     def link_frames(self, theta) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """World (rotation (3, 3), position (3,)) of every link frame of the URDF at a pose."""
@@ -209,7 +241,9 @@ class ViaPointBackend:
         udv = np.einsum("si,sin->sn", u, dv)
         w = weight[self._seg_owner[self._moving]]
         curv = np.einsum("sin,sim->snm", dv, dv) - udv[:, :, None] * udv[:, None, :]
-        H = np.einsum("s,snm->nm", w / seg_len, curv)
+        # a segment of zero length has no curvature to add (see ``_directions``)
+        bend = np.divide(w, seg_len, out=np.zeros_like(seg_len), where=seg_len > 0)
+        H = np.einsum("s,snm->nm", bend, curv)
         # d2p[e, :, k, l] = omega_inner x J_outer, zero unless both joints move the point.
         d2p = _cross(paths.omega[:, self._pair_inner][None], paths.jp[:, :, self._pair_outer])
         moves = self._via_moves[self._end_points]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pimbs_arm.model import ArmModel
-from pimbs_arm.poses import MAPS, atl_floor_range, hold_ceiling, plan_poses
+from pimbs_arm.poses import MAPS, PosePlan, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_recording.approach import BAND_M
 
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
@@ -67,14 +67,15 @@ class CollectionPlan:
     """The whole seeded sequence of targets for ``n_samples`` samples of one robot."""
 
     def __init__(self, model: ArmModel, n_samples: int, seed: int, map_kind: str = "atl",
-                 pretension: np.ndarray | None = None) -> None:
+                 pretension: np.ndarray | None = None, poses: PosePlan | None = None) -> None:
         if map_kind not in MAPS:
             raise ValueError(f"map must be one of {', '.join(MAPS)}, not {map_kind!r}")
         self.model, self.n_samples, self.seed, self.map_kind = model, n_samples, seed, map_kind
         floor = np.array([m.f_floor for m in model.robot.muscles])
         # A real wire is never commanded slack: the AL-Map's f_min = 0 becomes each floor.
         self.pretension = floor if pretension is None else np.asarray(pretension, float)
-        poses = plan_poses(model, n_samples, seed, map_kind)
+        # chosen poses (a poses file) or the seeded sequence
+        poses = plan_poses(model, n_samples, seed, map_kind) if poses is None else poses
         self.poses, self.f_min, self.replaced = poses.poses, poses.floors, poses.replaced
         self.ceiling = hold_ceiling(model)
         self.floor = floor

@@ -16,9 +16,9 @@ from pimbs_hw.collection.temperature import temperature_note
 from pimbs_recording.format import RecordingWriter, make_meta, read_recording
 
 # metadata keys that must match for --resume (they define the pose/tension sequence)
-RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map", "schema")
+RESUME_KEYS = ("robot", "joints", "muscles", "seed", "samples", "map", "schema", "poses_file")
 _OPTION = {"robot": "--robot", "seed": "--seed", "samples": "--samples", "map": "--map",
-           "schema": "--schema"}
+           "schema": "--schema", "poses_file": "--poses-file"}
 
 
 def collection_meta(model: ArmModel, plan_meta: Mapping[str, Any], *, port: str,

@@ -7,7 +7,9 @@ adapter on a pty (``link="slcan"``; ``mock.port`` is ``slcan:/dev/pts/N`` for py
 Behind the boards is ``Plant``: the arm model's static equilibrium with first-order
 settling (or, with ``plant=arm.xml``, ``MujocoPlant``: MuJoCo's dynamics), noisy sensors,
 load heating, an optional concealed effect (``effects.py``) and
-injected faults (``faults.py``).
+injected faults (``faults.py``). The boards and the plant run on a clock that stands still
+while this process cannot run (``MockArm._clock``), so a loaded machine slows the simulated
+arm down instead of tripping its boards' watchdogs.
 
     with MockArm(robot, "virtual:demo", speed=10, faults=["overheat:m1@3"]) as mock:
         ...  # ArmDriver(CanTransport(mock.port), robot)
@@ -25,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pimbs_hw.errors import HardwareError
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.mock.boards import ProfileBoard, SiReading, V1Board
 from pimbs_hw.mock.effects import EffectStack
 from pimbs_hw.mock.faults import FaultSpec, parse_faults
@@ -118,7 +121,9 @@ class MockArm:
                                  f"--plant {plant} the plant MJCF is the true arm: make that "
                                  "change in the plant file")
             self.plant = MujocoPlant(Path(plant), self.model, speed=speed, ambient_c=ambient)
-        now = time.monotonic()
+        self.host_lag = host_lag()
+        self._now = -np.inf
+        now = self._clock()
         # incremental encoders power up anywhere: the host must zero them (``pimbs zero``)
         self.encoder_offset_m = (np.zeros(m) if encoder_offset_m is None
                                  else np.broadcast_to(np.asarray(encoder_offset_m, float),
@@ -228,6 +233,21 @@ class MockArm:
             return self.plant.settled()
 
     # -- board loop ------------------------------------------------------------------------
+    def _clock(self) -> float:
+        """The simulated boards' time: wall time less the stalls of this process.
+
+        The boards stand for devices with CPUs of their own, but run in this process: when
+        it cannot run (other work has every core, a call holds the GIL), the host's commands
+        and the boards' own loop stall together, and on a wall clock the boards' watchdogs
+        would relax the arm for the machine's load rather than for anything the host did. On
+        this clock a stalled process is a pause of the simulated world, as a lagging solver
+        is for the plant (``HostLag``); a host that stops commanding while it runs still
+        trips the watchdog.
+        """
+        t = time.monotonic()
+        self._now = max(self._now, t - self.host_lag.total(t))
+        return self._now
+
     def _run(self) -> None:
         next_tick = time.monotonic()
         while not self._stop.is_set():
@@ -235,6 +255,11 @@ class MockArm:
                 frame = self.transport.recv(max(0.0, next_tick - time.monotonic()))
                 while frame is not None:
                     self._on_frame(frame)
+                    # every frame that arrived before the tick was due is acted on first (a
+                    # board's watchdog must see the command that reached it in time), but a
+                    # steady stream (CANopen SYNC at 1 kHz) must not hold the tick off
+                    if frame.timestamp >= next_tick:
+                        break
                     frame = self.transport.recv(0.0)
             except HardwareError as exc:  # a broken link is the host's problem to report
                 log.debug("mock arm link: %s", exc)
@@ -245,7 +270,7 @@ class MockArm:
                     self._actuate()
             now = time.monotonic()
             if now >= next_tick:
-                self._tick(now)
+                self._tick(self._clock())
                 next_tick = max(next_tick + self.tick_s, now)
 
     def _drain(self, timeout_s: float = 0.2) -> None:
@@ -268,7 +293,7 @@ class MockArm:
         if self._bus_off:
             return
         i = self._by_frame.get(frame.arbitration_id)
-        now = time.monotonic()
+        now = self._clock()
         if i is None:
             for j in self._broadcast.get(frame.arbitration_id, ()):
                 with self._lock:

@@ -1,25 +1,51 @@
 """A simulated CiA 402 servo drive: a ``canopen.LocalNode`` built from the drive's EDS.
 
-Written from CiA 301 (NMT, SDO server, PDOs, heartbeat producer 0x1017 and consumer 0x1016,
-EMCY with the error register 0x1001) and CiA 402-2 (the power drive state machine driven by
-the controlword 0x6040 and shown in the statusword 0x6041; modes of operation 0x6060/0x6061;
-quick stop option code 0x605A), not from the PIMBS host: the host is tested against it.
-canopen's LocalNode holds the object dictionary and answers SDO; this module adds what a
-drive's firmware does with the objects (canopen leaves that to the application).
+Written from CiA 301 (NMT, SDO server, PDOs, SYNC consumer, heartbeat producer 0x1017 and
+consumer 0x1016, EMCY with the error register 0x1001) and CiA 402-2 (the power drive state
+machine driven by the controlword 0x6040 and shown in the statusword 0x6041; modes of
+operation 0x6060/0x6061; quick stop option code 0x605A), not from the PIMBS host: the host
+is tested against it, and so is canopen's own ``BaseNode402``. canopen's LocalNode holds
+the object dictionary and answers SDO; this module adds what a drive's firmware does with
+the objects (canopen leaves that to the application).
+
+PDOs, in NMT OPERATIONAL only, by each PDO's transmission type (0x14xx/0x18xx:02, CiA 301):
+a TPDO of type 1..240 is sampled and sent after every n-th SYNC, type 0 after a SYNC when
+its data changed, type 254/255 when its data changed or its event timer (0x18xx:05, ms)
+ran out, never sooner than its inhibit time (0x18xx:03, 100 us) after the previous one;
+types 241..253 (RTR only, reserved) are not sent. An RPDO of type 0..240 is taken into the
+object dictionary at the next SYNC (the last one received counts), of type 254/255 at once.
+
+SYNC supervision: with a communication cycle period 0x1006 set, a drive in Operation
+enabled and a cyclic synchronous mode (8, 9, 10) that hears no SYNC for
+``sync_loss_cycles`` periods reports it as a SYNC consumer does (EMCY 0x8100, communication
+error) and faults. Real drives allow from 1.5 periods (the CANopenNode stack) to a SYNC
+timeout set in milliseconds (Bonfiglioli's inverters: off, or up to 60 s); this one allows
+``SYNC_LOSS_CYCLES`` periods (0.5 s at 1 kHz), what a Python host that shares a loaded
+computer with the simulation holds: its SYNC thread has been seen 100 ms late. The drive's
+clock advances with the simulation's ticks, at most ``CLOCK_STEP_S`` per tick, so a stall
+of this whole process (which a drive on its own CPU never has) is not mistaken for a lost
+SYNC; a SYNC that stops is.
 
 Faults (``--fault`` kinds): ``drive-fault`` (the drive detects an overcurrent: EMCY 0x2310,
 Fault), ``overheat`` (the motor heats; past ``TRIP_C`` the drive faults with EMCY 0x4310),
-``lost-heartbeat`` (its heartbeat producer stops; PDOs go on), and a host whose heartbeat
-stops (the consumer 0x1016 fires: EMCY 0x8130, Fault, as abort connection option 1 says).
+``lost-heartbeat`` (its heartbeat producer stops; PDOs go on), ``lost-sync`` (SYNC no longer
+reaches it: it faults as above), and a host whose heartbeat stops (the consumer 0x1016
+fires: EMCY 0x8130, Fault, as abort connection option 1 says).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import canopen
 
 from pimbs_hw.protocol.board import RawFrame
 
 TRIP_C = 85.0  # the drive's own thermal trip
+SYNC_ID = 0x080  # 0x1005 COB-ID SYNC (CiA 301 default)
+SYNC_LOSS_CYCLES = 500  # SYNC periods (0x1006) without a SYNC before the drive faults
+CLOCK_STEP_S = 0.025  # most drive time one simulation tick may advance (see docstring)
+CYCLIC_MODES = (8, 9, 10)  # cyclic synchronous position, velocity, torque
 RELAX_MATCH_N = 0.5
 # statusword bits per state (CiA 402-2 table "state coding"); 0x10 voltage enabled
 STATUSWORD = {"Not ready to switch on": 0x00, "Switch on disabled": 0x40,
@@ -28,7 +54,17 @@ STATUSWORD = {"Not ready to switch on": 0x00, "Switch on disabled": 0x40,
 REMOTE = 0x200  # statusword bit 9: the controlword is obeyed
 OPERATIONAL = 5
 EMCY_CODES = {"drive-fault": (0x2310, 0x03), "overheat": (0x4310, 0x09),
-              "host-heartbeat": (0x8130, 0x11)}  # code, error register (CiA 301 bits)
+              "host-heartbeat": (0x8130, 0x11),
+              "sync-loss": (0x8100, 0x11)}  # code, error register (CiA 301 bits)
+
+
+@dataclass
+class _Sent:
+    """Transmission state of one TPDO."""
+
+    syncs: int = 0  # SYNCs since it last went out (cyclic types)
+    time: float = float("-inf")  # when it last went out
+    data: bytes | None = None  # what it carried
 
 
 class _Task:
@@ -101,7 +137,8 @@ class Cia402Board:
 
     checksum = False
 
-    def __init__(self, spec, drive, now: float, winding: int = 1) -> None:
+    def __init__(self, spec, drive, now: float, winding: int = 1,
+                 sync_loss_cycles: int = SYNC_LOSS_CYCLES) -> None:
         self.spec, self.drive = spec, drive
         self.node = canopen.LocalNode(spec.board_id, drive.object_dictionary(spec.board_id))
         self.net = _Outbox()
@@ -113,7 +150,8 @@ class Cia402Board:
         nid = self.node.id
         self.frame_ids = {0x600 + nid, *(base + nid for base in (0x200, 0x300, 0x400, 0x500))}
         self.host_heartbeat_id = 0x700 + drive.host_node_id
-        self.broadcast_ids = {0x000, self.host_heartbeat_id}  # NMT, the host's heartbeat
+        # NMT, SYNC, the host's heartbeat
+        self.broadcast_ids = {0x000, SYNC_ID, self.host_heartbeat_id}
         self.state = "Switch on disabled"  # after the automatic transition 1
         self.history = [self.state]  # every state entered (for tests)
         self.controlwords: list[int] = []  # every controlword received, SDO or RPDO
@@ -128,7 +166,14 @@ class Cia402Board:
         self.host_seen: float | None = None
         self.consumer_ms = 0
         self.reading = None
-        self._tpdo_due: dict[int, float] = {}
+        self.syncs = 0  # SYNCs heard (for tests)
+        self.cycle_us = 0  # 0x1006 communication cycle period, 0: SYNC not supervised
+        self.sync_loss_cycles = sync_loss_cycles
+        self._since_sync = 0.0  # drive time without a SYNC while supervised
+        self._clock = now  # the simulation time the drive clock last advanced to
+        self._sync_tx: list[tuple[object, _Sent]] = []  # TPDOs sent on SYNC (types 0..240)
+        self._event_tx: list[tuple[object, _Sent]] = []  # event-driven TPDOs (254, 255)
+        self._pending: dict[int, object] = {}  # RPDOs (by COB-ID) to take at the next SYNC
         self.node.nmt.send_command(0x81)  # power on: initialising, boot-up message
         self.node.nmt.send_command(0x80)  # then pre-operational (CiA 301)
 
@@ -158,6 +203,8 @@ class Cia402Board:
             self._controlword(value)
         elif index == 0x6060:
             self.mode_op = value
+        elif index == 0x1006:
+            self.cycle_us = value
         elif index == 0x1016 and subindex == 1:
             self.consumer_ms = value & 0xFFFF if value >> 16 & 0x7F == self.drive.host_node_id \
                 else 0
@@ -165,8 +212,86 @@ class Cia402Board:
             self.targets[(index, subindex)] = value
 
     def _on_rpdo(self, pdo_map) -> None:
+        if self.node.nmt.state != "OPERATIONAL":
+            return  # CiA 301: PDOs only in OPERATIONAL
+        if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
+            self._pending[pdo_map.cob_id] = pdo_map  # synchronous: taken at the next SYNC
+        else:
+            self._take(pdo_map)
+
+    def _take(self, pdo_map) -> None:
         for var in pdo_map.map:
             self.node.set_data(var.index, var.subindex, var.get_data())
+
+    # -- PDO transmission (CiA 301) --------------------------------------------------------
+    def _in_force(self) -> None:
+        """At NMT start: the PDO configuration the host wrote takes effect."""
+        self.node.tpdo.read()
+        self.node.rpdo.read()
+        self._pending = {}
+        self._sync_tx, self._event_tx = [], []
+        for pdo_map in self.node.tpdo.map.values():
+            kind = pdo_map.trans_type
+            if not (pdo_map.enabled and pdo_map.map and kind is not None):
+                continue
+            if kind <= 240:
+                self._sync_tx.append((pdo_map, _Sent()))
+            elif kind >= 254:  # 241..253: RTR only or reserved, never sent unasked
+                self._event_tx.append((pdo_map, _Sent()))
+
+    def _sample(self, pdo_map) -> bytes:
+        return b"".join(self._value(v) for v in pdo_map.map)
+
+    def _value(self, var) -> bytes:
+        """An object's bytes as the drive would send them; zeros for one it does not model
+        (velocity actual 0x606C) and whose EDS gives no default."""
+        try:
+            return self.node.get_data(var.index, var.subindex)
+        except canopen.SdoAbortedError:
+            return bytes(len(var.od) // 8)
+
+    def _send(self, pdo_map, sent: _Sent, data: bytes, now: float) -> None:
+        sent.syncs, sent.time, sent.data = 0, now, data
+        self.net.outbox.append((pdo_map.cob_id, data))
+
+    def _on_sync(self, now: float) -> None:
+        """Synchronous TPDOs sample and go out, then synchronous RPDOs take effect."""
+        self.syncs += 1
+        self._since_sync = 0.0
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        for pdo_map, sent in self._sync_tx:
+            kind = pdo_map.trans_type
+            sent.syncs += 1
+            if kind and sent.syncs >= kind:
+                self._send(pdo_map, sent, self._sample(pdo_map), now)
+            elif kind == 0 and (data := self._sample(pdo_map)) != sent.data:
+                self._send(pdo_map, sent, data, now)
+        pending, self._pending = self._pending, {}
+        for pdo_map in pending.values():
+            self._take(pdo_map)
+
+    def _events(self, now: float) -> None:
+        """Event-driven TPDOs (254, 255): on a change, or when the event timer runs out."""
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        for pdo_map, sent in self._event_tx:
+            if now - sent.time < (pdo_map.inhibit_time or 0) / 1e4:
+                continue
+            data = self._sample(pdo_map)
+            timer = (pdo_map.event_timer or 0) / 1000.0
+            if data != sent.data or (timer and now - sent.time >= timer):
+                self._send(pdo_map, sent, data, now)
+
+    def _supervise_sync(self, now: float) -> None:
+        step, self._clock = min(max(0.0, now - self._clock), CLOCK_STEP_S), now
+        if not (self.cycle_us and self.state == "Operation enabled"
+                and self.mode_op in CYCLIC_MODES):
+            self._since_sync = 0.0
+            return
+        self._since_sync += step
+        if self._since_sync > self.sync_loss_cycles * self.cycle_us / 1e6:
+            self._fault("sync-loss")
 
     # -- state machine ---------------------------------------------------------------------
     def _enter(self, state: str) -> None:
@@ -216,12 +341,14 @@ class Cia402Board:
         if fid == self.host_heartbeat_id:
             self.host_seen = now
             return False
+        if fid == SYNC_ID:
+            if "lost-sync" not in self.injected:
+                self._on_sync(now)
+            return bool(self.net.outbox)
         before = self.node.nmt.state
         self.net.notify(fid, bytearray(data), now)
         if self.node.nmt.state != before and self.node.nmt.state == "OPERATIONAL":
-            self.node.tpdo.read()  # the PDO configuration the host wrote, now in force
-            self.node.rpdo.read()
-            self._tpdo_due = {}
+            self._in_force()
         return bool(self.net.outbox)
 
     def supervise(self, now: float, reading) -> None:
@@ -234,6 +361,7 @@ class Cia402Board:
             self._fault("drive-fault")
         if reading.temperature_c >= TRIP_C:
             self._fault("overheat")
+        self._supervise_sync(now)
         if (self.consumer_ms and self.host_seen is not None
                 and now - self.host_seen > self.consumer_ms / 1000.0):
             self.host_seen = None  # one event per loss (CiA 301: consumer restarts on the
@@ -272,7 +400,10 @@ class Cia402Board:
         return "position"
 
     def frames(self, now: float, reading, reply: bool = False) -> list[RawFrame]:
+        """What the drive sends now: answers, EMCY and SYNC-driven TPDOs queued since the
+        last call, its heartbeat when due, and event-driven TPDOs."""
         self.reading = reading
+        self._events(now)
         out, self.net.outbox = self.net.outbox, []
         for task in self.net.tasks:
             if not task.stopped and now >= task.due:
@@ -280,16 +411,6 @@ class Cia402Board:
                 if "lost-heartbeat" not in self.injected:
                     out.append((task.can_id, task.data))
         self.net.tasks = [t for t in self.net.tasks if not t.stopped]
-        if self.node.nmt.state != "OPERATIONAL" or reply:
-            return out
-        for n, pdo_map in self.node.tpdo.map.items():
-            if not pdo_map.enabled or not pdo_map.event_timer or not pdo_map.map:
-                continue
-            due = self._tpdo_due.get(n, now)
-            if now >= due:
-                self._tpdo_due[n] = max(due + pdo_map.event_timer / 1000.0, now)
-                out.append((pdo_map.cob_id, b"".join(
-                    self.node.get_data(v.index, v.subindex) for v in pdo_map.map)))
         return out
 
 

@@ -3,7 +3,8 @@
 KIND      silent-board, drop-frames, corrupt-frames, overheat, saturate-loadcell, bus-off,
           drive-fault (the motor driver faults and stays faulted: an ODrive axis disarms to
           IDLE with DRV_FAULT and cannot be re-armed; a PIMBS board reports a motor fault; a
-          CiA 402 drive enters Fault), lost-heartbeat (CiA 402 drives: the heartbeat stops)
+          CiA 402 drive enters Fault), lost-heartbeat (CiA 402 drives: the heartbeat stops),
+          lost-sync (CiA 402 drives: SYNC no longer reaches the drive)
 MUSCLE    muscle name (``m2``); omit or ``*`` for bus-wide kinds (bus-off) or every muscle
 TRIGGER   ``12``  sample index of the collection (``MockArm.set_sample``)
           ``2.5s`` seconds after the mock started
@@ -18,7 +19,7 @@ import re
 from dataclasses import dataclass
 
 KINDS = ("silent-board", "drop-frames", "corrupt-frames", "overheat", "saturate-loadcell",
-         "bus-off", "drive-fault", "lost-heartbeat")
+         "bus-off", "drive-fault", "lost-heartbeat", "lost-sync")
 _SPEC = re.compile(r"^(?P<kind>[a-z-]+)(?::(?P<muscle>[^@]+))?(?:@(?P<trigger>[0-9.]+[sc]?))?$")
 
 

@@ -12,7 +12,10 @@ never the model's equilibrium.
 The plant MJCF may differ from the description (a pulley radius, a via point, a mass the
 description got wrong: the "real" arm); it must name the description's joints (hinges) and
 muscles (spatial tendons). Joints of the plant that the description does not drive are held
-at their reference ``qpos0`` (or the description's ``locked`` value).
+at their reference ``qpos0`` (or the description's ``locked`` value), except the followers
+of the plant's own ``<equality><joint>`` couplings whose chain of leaders starts at a driven
+joint: MuJoCo's equality constraint stays active and moves them with their leaders, as the
+plant file says (they start where the coupling puts them).
 
 Length-mode motors follow their command with a first-order servo (``motor_tau_s``); a
 tension-mode board's force loop is modelled as a first-order lag to the commanded tension,
@@ -33,7 +36,14 @@ import mujoco
 import numpy as np
 import scipy.linalg
 
-from pimbs_calibration.mjcf import MjcfError, compile_model, joint_names, tendon_names
+from pimbs_calibration.coupling import CoupledJoints, CouplingError, coupling_order, moved_by
+from pimbs_calibration.mjcf import (
+    MjcfError,
+    compile_model,
+    joint_couplings,
+    joint_names,
+    tendon_names,
+)
 from pimbs_hw.mock.plant import PlantState, thermal_step
 from pimbs_recording.approach import FrictionPlay
 
@@ -78,6 +88,20 @@ def _driven(mj: mujoco.MjModel, robot, xml: Path) -> tuple[list[int], np.ndarray
             np.array([tendons.index(t) for t in muscles], dtype=int))
 
 
+def _coupled(mj: mujoco.MjModel, robot, xml: Path) -> CoupledJoints:
+    """The description's driven joints in the plant and the plant's followers they move
+    (through the plant's own active joint equalities)."""
+    try:
+        couplings = {c.follower: c for c in coupling_order(joint_couplings(mj))}
+    except CouplingError as exc:
+        raise PlantMismatch(f"--plant {xml}: {exc}; keep one active <equality><joint> per "
+                            "follower joint") from exc
+    names = joint_names(mj)
+    return CoupledJoints(robot.joints, moved_by(couplings, robot.joints),
+                         {n: int(mj.jnt_qposadr[i]) for i, n in enumerate(names)},
+                         {n: int(mj.jnt_dofadr[i]) for i, n in enumerate(names)})
+
+
 @dataclass(frozen=True)
 class Ringing:
     """How long the plant arm rings once disturbed, and the joint damping that would calm it.
@@ -87,7 +111,8 @@ class Ringing:
     off: the boards drive the tendons). Every motion of the driven joints decays at least as
     fast as exp(-t / ``decay_s``), whatever the wires' stiffness: ``decay_s`` = 2 / (smallest
     eigenvalue of M⁻¹D), M the joint-space inertia (armature included), D the damping,
-    the worst over the centre and corners of the joint ranges.
+    the worst over the centre and corners of the joint ranges (256 of the corners, drawn with
+    a fixed seed, for an arm of more than 8 driven joints).
     """
 
     decay_s: float          # inf: some motion of the joints is not damped at all
@@ -117,21 +142,27 @@ def ringing(xml: Path, robot) -> Ringing:
     mj = _compile(Path(xml))
     jid, _ = _driven(mj, robot, Path(xml))
     qadr, dof = mj.jnt_qposadr[jid], mj.jnt_dofadr[jid]
+    coupled = _coupled(mj, robot, Path(xml))
+    cols = np.ix_(coupled.columns, coupled.columns)
     data = mujoco.MjData(mj)
     full_m, jac = np.zeros((mj.nv, mj.nv)), np.zeros((mj.ntendon, mj.nv))
     lo, hi = np.asarray(robot.joint_range, float).T
-    poses = [(lo + hi) / 2] + [np.array(c) for c in itertools.product(*zip(lo, hi, strict=True))]
+    poses = [(lo + hi) / 2] + _corners(lo, hi)
     decay, inertias = 0.0, []
     for theta in poses:
         data.qpos[:] = mj.qpos0
         data.qpos[qadr] = theta
+        coupled.place(data.qpos)
         mujoco.mj_forward(mj, data)
         mujoco.mj_fullM(mj, data, full_m)
         mujoco.mju_sparse2dense(jac, data.ten_J, mj.ten_J_rownnz, mj.ten_J_rowadr,
                                 mj.ten_J_colind)
-        inertias.append(full_m[np.ix_(dof, dof)].copy())
-        damping = (np.diag(mj.dof_damping[dof])
-                   + (jac.T @ np.diag(mj.tendon_damping) @ jac)[np.ix_(dof, dof)])
+        # in the driven joints' coordinates: followers move with them (S; the identity
+        # without couplings)
+        S = coupled.jacobian(data.qpos)
+        inertias.append(S.T @ full_m[cols] @ S)
+        damping = S.T @ (np.diag(mj.dof_damping) + jac.T @ np.diag(mj.tendon_damping) @ jac
+                         )[cols] @ S
         decay = max(decay, _decay_s(damping, inertias[-1]))
     # joint damping in proportion to each joint's largest inertia, scaled so that no pose
     # rings longer than RING_TARGET_S (decay scales as 1/damping; the tendons' only adds)
@@ -139,6 +170,15 @@ def ringing(xml: Path, robot) -> Ringing:
     scale = max(_decay_s(np.diag(shape), m) for m in inertias) / RING_TARGET_S
     return Ringing(decay_s=decay, damping=np.array(mj.dof_damping[dof]),
                    suggested=np.maximum(mj.dof_damping[dof], scale * shape))
+
+
+def _corners(lo: np.ndarray, hi: np.ndarray, most: int = 256) -> list[np.ndarray]:
+    """The corners of the joint ranges, or, where there are more than ``most`` (a 27-joint
+    arm has 134 million), ``most`` of them drawn with a fixed seed."""
+    if 2 ** len(lo) <= most:
+        return [np.array(c) for c in itertools.product(*zip(lo, hi, strict=True))]
+    pick = np.random.default_rng(0).integers(0, 2, (most, len(lo))).astype(bool)
+    return list(np.where(pick, hi, lo))
 
 
 def _decay_s(damping: np.ndarray, inertia: np.ndarray) -> float:
@@ -170,6 +210,7 @@ class MujocoPlant:
         self._J = np.zeros((self.mj.ntendon, self.mj.nv))
         self._home = False
         self._reset_locked()
+        self._coupled.place(self.data.qpos)  # followers start where their couplings hold
         mujoco.mj_fwdPosition(self.mj, self.data)
         self._h0 = self.data.ten_length[self._tendon].copy()  # tendon lengths at theta = 0
         # power-up: motors hold their length (l = 0), the arm sags onto its elastic elements
@@ -191,12 +232,16 @@ class MujocoPlant:
         """Plant joints and tendons by the description's names; a clear line if missing."""
         jid, self._tendon = _driven(self.mj, robot, self.xml)
         self._qadr, self._dof = self.mj.jnt_qposadr[jid], self.mj.jnt_dofadr[jid]
+        self._coupled = _coupled(self.mj, robot, self.xml)
         joints = joint_names(self.mj)
         self._q0 = self.mj.qpos0.copy()
         for name, value in robot.locked:
             if name in joints:
                 self._q0[self.mj.jnt_qposadr[joints.index(name)]] = value
-        driven_q, driven_v = set(self._qadr.tolist()), set(self._dof.tolist())
+        # MuJoCo's equality constraint moves the followers: they are neither driven nor held
+        followers = [joints.index(c.follower) for c in self._coupled.couplings]
+        driven_q = set(self._qadr.tolist()) | set(self.mj.jnt_qposadr[followers].tolist())
+        driven_v = set(self._coupled.columns.tolist())
         self._locked_q = np.array([q for q in range(self.mj.nq) if q not in driven_q], int)
         self._locked_v = np.array([v for v in range(self.mj.nv) if v not in driven_v], int)
 
@@ -210,7 +255,8 @@ class MujocoPlant:
             d.qvel[self._locked_v] = 0.0
         if self._home:
             d.qpos[self._qadr] = 0.0
-            d.qvel[self._dof] = 0.0
+            self._coupled.place(d.qpos)
+            d.qvel[self._coupled.columns] = 0.0
 
     def _substep(self) -> None:
         """One MuJoCo timestep: motors, elastic elements, tendon forces, integration."""

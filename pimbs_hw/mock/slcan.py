@@ -20,6 +20,7 @@ import select
 import threading
 import time
 
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.safety import LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 from pimbs_hw.transport.serialport import PtyMaster
@@ -114,16 +115,20 @@ class SlcanAdapter(QueuedTransport):
     # -- bus side (the simulated boards) ----------------------------------------------------
     def send(self, arbitration_id: int, data: bytes) -> None:
         """Queue a bus frame for the host. USB is flow-controlled: when the host reads late
-        the adapter waits (up to ``FLOW_WAIT_S``) instead of dropping, as its buffer would."""
+        the adapter waits (up to ``FLOW_WAIT_S``, not counting the time this process could
+        not run: the host and this emulated adapter share it) instead of dropping, as its
+        buffer would."""
         if not self.is_open or self.closed:
             return
         line = format_frame(arbitration_id, data)
-        deadline = time.monotonic() + FLOW_WAIT_S
+        start = time.monotonic()
         while line and not self.closed:
             try:
                 line = line[os.write(self._pty.fd, line):]
             except BlockingIOError:
-                if time.monotonic() > deadline:
+                now = time.monotonic()
+                if now - start > FLOW_WAIT_S and (
+                        now - start - host_lag().starved(start, now) > FLOW_WAIT_S):
                     return  # the host stopped reading: the adapter's buffer overflows
                 select.select([], [self._pty.fd], [], 0.01)
             except OSError:

@@ -170,3 +170,8 @@ class BoardProtocol(ABC):
     def unreachable(self, watchdog_s: float) -> str:
         """What these boards do when the host cannot reach them any more (the end state)."""
         return f"{self.name} boards: relaxed by their own watchdog within {watchdog_s:g} s"
+
+    def close(self) -> None:
+        """The host is leaving and has sent its last relax; the transport closes next
+        (CANopen: the SYNC that applies synchronous RPDOs stops after one more)."""
+        return None

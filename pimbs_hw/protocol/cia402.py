@@ -2,24 +2,35 @@
 
 One drive per muscle, node id = the muscle's ``board_id``, described by the maker's EDS and
 a drive file (``cia402_config.py``). At connect (``connect``, over SDO with canopen's
-client): NMT pre-operational; identity (0x1018) and supported modes (0x6502) read; the
-drive's heartbeat producer (0x1017) and its consumer of the host's heartbeat (0x1016, the
-host watchdog) set; the tension ceiling written to Max torque (0x6072) where the EDS has
-it; RPDOs and TPDOs mapped (canopen ``PdoMap`` save, packed into the map sizes the EDS
-allows); the state machine walked Shutdown 0x06 -> Switch on 0x07 -> Enable operation 0x0F
-(after a Fault reset, bit 7 rising edge, if the drive reports Fault), each step waiting for
-the statusword to show the state; then NMT start.
+client): NMT pre-operational; identity (0x1018) and supported modes (0x6502) read; if any
+drive runs a cyclic synchronous mode, the bus's SYNC started (``canopen_link.start_sync``,
+``sync_period_us``, 1 ms by default) and the communication cycle period 0x1006 and the
+interpolation time period 0x60C2 written where the EDS has them; the drive's heartbeat
+producer (0x1017) and its consumer of the host's heartbeat (0x1016, the host watchdog)
+set; the tension ceiling written to Max torque (0x6072) where the EDS has it; RPDOs and
+TPDOs mapped (canopen ``PdoMap`` save, packed into the map sizes the EDS allows) with their
+transmission types, read back to be sure the drive took them; the state machine walked
+Shutdown 0x06 -> Switch on 0x07 -> Enable operation 0x0F (after a Fault reset, bit 7 rising
+edge, if the drive reports Fault), each step waiting for the statusword to show the state;
+then NMT start.
 
 Cyclic: every command is RPDOs (controlword 0x0F, mode of operation, target) built with
 canopen's PDO maps, plus the host's heartbeat frame: a host that stops commanding stops its
-heartbeat, and the drives' heartbeat consumer acts. The drives send TPDOs on their event
-timer (statusword, mode display, actual torque, actual position, optional temperature);
-tension mode is cyclic synchronous torque (10) or, where 0x6502 says the drive lacks it,
-profile torque (4); length mode is cyclic synchronous position (8) or profile position (1).
-Relax = torque mode at the holding floor; stop = the CiA 402 quick stop (controlword 0x02).
+heartbeat, and the drives' heartbeat consumer acts. Under SYNC the RPDOs are synchronous
+(transmission type 1: a drive takes them at the next SYNC) and the drives send their TPDOs
+(statusword, mode display, actual torque, actual position, optional temperature) after
+every n-th SYNC (type n = status period / SYNC period); without SYNC both are event-driven
+(type 255, TPDO event timer = the status period, inhibit time half of it). Tension mode is
+cyclic synchronous torque (10) or, where 0x6502 says the drive lacks it, profile torque (4);
+length mode is cyclic synchronous position (8) or profile position (1). Relax = torque mode
+at the holding floor; stop = the CiA 402 quick stop (controlword 0x02). ``close`` stops the
+SYNC after one last SYNC, so the relax sent before it takes effect.
 
 Everything the host reports is what a drive sent: the state from its statusword, the fault
-from its EMCY (code, error register 0x1001), its NMT state from its heartbeat.
+from its EMCY (code, error register 0x1001), its NMT state from its heartbeat. A drive in a
+cyclic synchronous mode that reports a communication error (EMCY 0x8100, what a SYNC
+consumer sends when SYNC stops within its 0x1006 supervision) is named as SYNC lost at once:
+its synchronous TPDOs, statusword included, need the SYNC it no longer hears.
 """
 
 from __future__ import annotations
@@ -36,7 +47,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from pimbs_hw.protocol import cia402_states as sm
 from pimbs_hw.protocol.board import BoardLimits, BoardProtocol, Capabilities, RawFrame, Update
-from pimbs_hw.protocol.canopen_link import attached
+from pimbs_hw.protocol.canopen_link import SYNC_ID, SyncProducer, attached, start_sync
 from pimbs_hw.protocol.cia402_config import DriveFile, DriveFileError, ObjectRef, find_object
 from pimbs_hw.protocol.codec import Fault
 from pimbs_hw.safety import BoardFault, BoardSilent, Overheat, SafetyStop, WatchdogExpired
@@ -46,20 +57,44 @@ SDO_TIMEOUT_S = 0.5  # per request; a drive on a loaded bus answers within milli
 STATE_WAIT_S = 1.0  # per state machine step
 HEARTBEAT_MISSES = 3  # producer periods without a heartbeat = the drive is lost
 OPERATIONAL = 5  # NMT state code in a heartbeat
+RPDO_SYNC, EVENT = 1, 255  # transmission types: taken at the next SYNC / at once (CiA 301)
+EMCY_COMMUNICATION = 0x8100  # CiA 301 emergency code: communication, generic
 _EMCY = struct.Struct("<HB5s")
 
 
+def interpolation_period(period_us: int) -> tuple[int, int]:
+    """0x60C2 (value, index) for a period: value x 10^index s, value 1..255 (CiA 402-2)."""
+    for index in range(0, -7, -1):
+        value, left = divmod(period_us, 10 ** (6 + index))
+        if not left and 1 <= value <= 255:
+            return value, index
+    raise ValueError(f"{period_us} us cannot be written as 0x60C2 (1..255 x 10^n s)")
+
+
+def _meaning(trans_type: int) -> str:
+    if trans_type == 0:
+        return "after a SYNC when changed"
+    if trans_type <= 240:
+        return f"every {trans_type}th SYNC" if trans_type > 1 else "every SYNC"
+    return "event-driven" if trans_type >= 254 else "RTR only or reserved"
+
+
 def _pdo_plan(node, pdos, refs: Sequence[ObjectRef], eds: str, what: str) -> list:
-    """Pack ``refs`` into ``pdos``'s maps in order, as many per map as the EDS allows."""
+    """Pack ``refs`` in order into as few of ``pdos``'s maps as the EDS allows: the maps
+    with the most entries first (fewer frames per cycle, on the bus and in the host)."""
     od, used, left = node.object_dictionary, [], list(refs)
-    for n, pdo_map in pdos.map.items():
+
+    def room(pdo_map) -> int:
+        record = od[pdo_map.map_array.od.index] if pdo_map.map_array.od.index in od else None
+        return len(record) - 1 if record is not None else 0
+
+    for n, pdo_map in sorted(pdos.map.items(), key=lambda item: -room(item[1])):
         if not left:
             break
-        record = od[pdo_map.map_array.od.index] if pdo_map.map_array.od.index in od else None
-        room = len(record) - 1 if record is not None else 0
         pdo_map.clear()
         bits = 0
-        while left and len(pdo_map.map) < room and bits + len(find_object(od, left[0])) <= 64:
+        while (left and len(pdo_map.map) < room(pdo_map)
+               and bits + len(find_object(od, left[0])) <= 64):
             ref = left.pop(0)
             pdo_map.add_variable(ref.index, ref.subindex)
             bits += len(find_object(od, ref))
@@ -69,7 +104,7 @@ def _pdo_plan(node, pdos, refs: Sequence[ObjectRef], eds: str, what: str) -> lis
         raise DriveFileError(f"EDS {eds}: no room in the drive's {what}s for object "
                              f"{left[0]} ({len(left)} of the objects do not fit in "
                              f"{len(pdos.map)} {what}s)")
-    return used
+    return sorted(used, key=lambda item: item[0])
 
 
 class Cia402Protocol(BoardProtocol):
@@ -99,13 +134,11 @@ class Cia402Protocol(BoardProtocol):
         back += [drive.temperature] if drive.temperature is not None else []
         self.rpdos = [_pdo_plan(n, n.rpdo, out, eds, "RPDO") for n in self.nodes]
         self.tpdos = [_pdo_plan(n, n.tpdo, back, eds, "TPDO") for n in self.nodes]
-        for k, node in enumerate(self.nodes):
+        for k, node in enumerate(self.nodes):  # transmission types: at connect
             for n, pdo_map in self.rpdos[k]:
-                pdo_map.cob_id, pdo_map.trans_type = 0x100 + 0x100 * n + node.id, 255
-                pdo_map.enabled = True
+                pdo_map.cob_id, pdo_map.enabled = 0x100 + 0x100 * n + node.id, True
             for n, pdo_map in self.tpdos[k]:
-                pdo_map.cob_id, pdo_map.trans_type = 0x80 + 0x100 * n + node.id, 255
-                pdo_map.event_timer, pdo_map.enabled = drive.status_period_ms, True
+                pdo_map.cob_id, pdo_map.enabled = 0x80 + 0x100 * n + node.id, True
         self._tpdo_ids = {m.cob_id: (k, m) for k in range(len(self.nodes))
                           for _, m in self.tpdos[k]}
         n = len(self.nodes)
@@ -126,6 +159,8 @@ class Cia402Protocol(BoardProtocol):
         self.mode_display: list[int | None] = [None] * n  # 0x6061 as last reported
         self._mode_cmd: list[int | None] = [None] * n  # the mode last commanded by PDO
         self._mode_late = [0] * n  # PDOs since then that still report another mode
+        self.synced = [False] * n  # runs a cyclic synchronous mode: PDOs on the host's SYNC
+        self.sync: SyncProducer | None = None
 
     # -- connect ---------------------------------------------------------------------------
     def connect(self, transport, limits: Sequence[BoardLimits]) -> None:
@@ -135,6 +170,11 @@ class Cia402Protocol(BoardProtocol):
             for node in self.nodes:
                 network.add_node(node)
                 node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
+            for k, node in enumerate(self.nodes):
+                self._probe(k, node)
+            if any(self.synced):  # before any drive is enabled in a mode that needs it
+                self.sync = start_sync(transport, self.drive.sync_period_us,
+                                       str(self.drive.path))
             for k, node in enumerate(self.nodes):
                 self._bring_up(k, node, limits[k])
             for node in self.nodes:
@@ -170,7 +210,8 @@ class Cia402Protocol(BoardProtocol):
         obj = self.nodes[k].sdo[index]
         return obj if isinstance(obj, canopen.sdo.SdoVariable) else obj[subindex]
 
-    def _bring_up(self, k: int, node, lim: BoardLimits) -> None:
+    def _probe(self, k: int, node) -> None:
+        """Pre-operational, identity, and the modes the drive offers (0x6502)."""
         od, drive = node.object_dictionary, self.drive
         node.nmt.send_command(0x80)  # enter pre-operational: configure over SDO
         self.identity[k] = tuple(self._read(k, 0x1018, s) for s in (1, 2, 3))  # type: ignore
@@ -183,6 +224,51 @@ class Cia402Protocol(BoardProtocol):
                                      "(cyclic synchronous torque or profile torque)")
             self.tension_mode[k] = tq
             self.position_mode[k] = sm.pick_mode(supported, (8, 1))  # type: ignore[call-arg]
+        self.synced[k] = bool({self.tension_mode[k], self.position_mode[k]} & sm.CYCLIC)
+
+    def _writable(self, k: int, index: int, subindex: int = 0) -> bool:
+        entry = find_object(self.nodes[k].object_dictionary, ObjectRef(index, subindex))
+        return entry is not None and entry.writable
+
+    def _cycle(self, k: int) -> None:
+        """0x1006 (a drive's SYNC supervision) and 0x60C2, where the EDS has them."""
+        period = self.drive.sync_period_us if self.synced[k] else 0  # 0: not supervised
+        if self._writable(k, 0x1006):
+            self._write(k, ObjectRef(0x1006, 0), period)
+        if self.synced[k] and self._writable(k, 0x60C2, 1) and self._writable(k, 0x60C2, 2):
+            value, index = interpolation_period(period)
+            self._write(k, ObjectRef(0x60C2, 1), value)
+            self._write(k, ObjectRef(0x60C2, 2), index)
+
+    def _map_pdos(self, k: int) -> None:
+        """Save the PDO maps with their transmission types and read the types back."""
+        sync, ms = self.synced[k], self.drive.status_period_ms
+        for _, pdo_map in self.rpdos[k]:
+            pdo_map.trans_type = RPDO_SYNC if sync else EVENT
+        for _, pdo_map in self.tpdos[k]:
+            pdo_map.trans_type = self.drive.sync_every if sync else EVENT
+            subs = pdo_map.com_record.od
+            if 5 in subs:  # event timer (ms) and inhibit time (100 us): event-driven only
+                pdo_map.event_timer = 0 if sync else ms
+            if 3 in subs:
+                pdo_map.inhibit_time = 0 if sync else ms * 5
+        for what, used in (("RPDO", self.rpdos[k]), ("TPDO", self.tpdos[k])):
+            for n, pdo_map in used:
+                self._sdo(k, pdo_map.save)
+                index = pdo_map.com_record.od.index
+                got, want = self._read(k, index, 2), pdo_map.trans_type
+                if got != want:
+                    why = ("its EDS makes it read-only" if not self._writable(k, index, 2)
+                           else "the drive did not take it")
+                    raise DriveFileError(
+                        f"CANopen node {self.nodes[k].id} ({self.drive.eds.name}): {what}{n} "
+                        f"keeps transmission type {got} ({_meaning(got)}, 0x{index:04X}:02) "
+                        f"where the host set {want} ({_meaning(want)}): {why}; its PDOs would "
+                        "not come and go when the host expects them")
+
+    def _bring_up(self, k: int, node, lim: BoardLimits) -> None:
+        od, drive = node.object_dictionary, self.drive
+        self._cycle(k)
         self._write(k, ObjectRef(0x1017, 0), drive.heartbeat_ms)
         if 0x1016 in od:  # the drive watches the host's heartbeat: the host watchdog
             ms = max(1, round(lim.watchdog_s * 1000))
@@ -190,8 +276,7 @@ class Cia402Protocol(BoardProtocol):
         if 0x6072 in od:  # Max torque, in the same units as the target torque
             ceiling = round(lim.tension_ceiling_n * drive.tension_target.per_si)
             self._write(k, ObjectRef(0x6072, 0), min(ceiling, 0xFFFF))
-        for _, pdo_map in (*self.rpdos[k], *self.tpdos[k]):
-            self._sdo(k, pdo_map.save)
+        self._map_pdos(k)
         for pdos, used in ((node.rpdo, self.rpdos[k]), (node.tpdo, self.tpdos[k])):
             taken = {n for n, _ in used}
             for n, pdo_map in pdos.map.items():  # unused PDOs off: nothing unexpected flows
@@ -304,7 +389,28 @@ class Cia402Protocol(BoardProtocol):
         if len(data) == 8:  # EMCY: code, error register, manufacturer bytes
             code, register, _ = _EMCY.unpack(data)
             self.emcy[k] = (code, register)
+            if self._sync_lost(k):  # no SYNC, no synchronous TPDO: its statusword won't come
+                return [Update(self.indices[k], faults=Fault.WATCHDOG, stop=WatchdogExpired,
+                               note=self._sync_lost_text(k))]
         return []
+
+    def _sync_lost(self, k: int) -> bool:
+        """A drive running on the host's SYNC reports a communication error."""
+        return (self.sync is not None and self.synced[k] and self._enabled[k]
+                and self.emcy[k] is not None and self.emcy[k][0] == EMCY_COMMUNICATION)
+
+    def _sync_lost_text(self, k: int) -> str:
+        code, register = self.emcy[k]  # type: ignore[misc]
+        mode = self.mode_display[k] if self.mode_display[k] is not None else self._mode_cmd[k]
+        status = ("" if self.statusword[k] is None else
+                  f" (statusword 0x{self.statusword[k]:04X})")
+        return (f"SYNC lost: the drive sent EMCY 0x{code:04X} (communication error, error "
+                f"register 0x{register:02X}: {sm.error_bits(register)}) in "
+                f"{sm.MODES.get(mode, f'mode {mode}')}, which runs on a SYNC every "
+                f"{self.drive.sync_period_us} us (0x1006); it last reported "
+                f"'{self.state[k]}'{status}; check that the SYNC (COB-ID 0x{SYNC_ID:03X}) "
+                f"reaches node {self.nodes[k].id}: the CAN wiring and termination, the bus "
+                "load, and a host process that gets enough CPU")
 
     def _emcy_text(self, k: int) -> str:
         if self.emcy[k] is None:
@@ -361,6 +467,8 @@ class Cia402Protocol(BoardProtocol):
         state = self.state[k]
         said = f"drive reports '{state}' (statusword 0x{word:04X}){self._emcy_text(k)}"
         if state in sm.FAULT_STATES:
+            if self._sync_lost(k):
+                return WatchdogExpired, Fault.WATCHDOG, self._sync_lost_text(k)
             code = self.emcy[k][0] if self.emcy[k] else 0
             if code & 0xF000 == 0x4000:
                 return Overheat, Fault.OVERHEAT, said
@@ -400,14 +508,29 @@ class Cia402Protocol(BoardProtocol):
 
     def not_relaxed(self) -> list[str]:
         """Drives that cannot be at their holding floor: what their statusword said."""
-        return [f"{self.specs[k].name} (node {self.board_ids[k]}): drive reported "
-                f"'{self.state[k]}', power stage off or stopping, not at the holding floor"
-                for k in range(len(self.nodes))
-                if self._enabled[k] and self.state[k] != sm.OPERATION_ENABLED]
+        out = []
+        for k, spec in enumerate(self.specs):
+            where = f"{spec.name} (node {self.board_ids[k]})"
+            if self._enabled[k] and self._sync_lost(k):
+                out.append(f"{where}: SYNC lost (EMCY 0x{EMCY_COMMUNICATION:04X}); its "
+                           "statusword needs SYNC and no longer comes, so its own reaction "
+                           "(0x6007) is not seen from here")
+            elif self._enabled[k] and self.state[k] != sm.OPERATION_ENABLED:
+                out.append(f"{where}: drive reported '{self.state[k]}', power stage off or "
+                           "stopping, not at the holding floor")
+        return out
 
     def unreachable(self, watchdog_s: float) -> str:
         states = ", ".join(f"{s.name} '{st}'" for s, st in zip(self.specs, self.state,
                                                                 strict=True))
+        sync = (" (and, in cyclic synchronous modes, its SYNC supervision misses the SYNC)"
+                if self.sync is not None else "")
         return (f"{self.name} drives (last reported: {states}): each drive's heartbeat "
-                f"consumer (0x1016) misses the host within {watchdog_s:g} s and the drive "
-                "leaves 'Operation enabled' by its own reaction (0x6007; not seen from here)")
+                f"consumer (0x1016) misses the host within {watchdog_s:g} s{sync} and the "
+                "drive leaves 'Operation enabled' by its own reaction (0x6007; not seen from "
+                "here)")
+
+    def close(self) -> None:
+        """The host leaves, its last relax sent: one last SYNC applies it, then no more."""
+        if self.sync is not None:
+            self.sync.stop()

@@ -9,11 +9,19 @@ it is loaded; every mistake is a ``DriveFileError`` naming the file, the EDS, th
     eds: my-drive.eds                  # the maker's EDS, relative to this file
     host_node_id: 127                  # the host's heartbeat producer id (not a drive's id)
     heartbeat_ms: 50                   # the drives' heartbeat producer time (0x1017)
-    status_period_ms: 10               # TPDO event timer (0x180x:5)
+    status_period_ms: 10               # how often the drives report (TPDOs)
+    sync_period_us: 1000               # SYNC period for cyclic synchronous modes (0x1006)
     objects:                           # object = "0xINDEX:SUB"; value = SI x per_si
       tension:  {actual: "0x6077:0", target: "0x6071:0", per_si: 10}   # e.g. per mille / N
       position: {actual: "0x6064:0", target: "0x607A:0", per_si: 1e5}  # counts per metre
       temperature: {actual: "0x2200:1", per_si: 1}                     # optional
+
+Drives that run a cyclic synchronous mode (CSP/CST, chosen from 0x6502) get SYNC every
+``sync_period_us`` (1 ms, the cycle industrial drives expect; written to 0x1006 and 0x60C2),
+targets in synchronous RPDOs (taken at the next SYNC) and TPDOs every
+``status_period_ms / sync_period_us``-th SYNC; other drives get event-driven PDOs (event
+timer ``status_period_ms``). A status period that is no whole number of SYNC periods, or more
+than 240 of them (CiA 301's largest cyclic transmission type), is refused.
 
 Tension is the drive's torque through the pulley (a loadcell on the drive's analogue input
 is named the same way, by its object). ``position.target`` may be omitted for a drive that
@@ -36,6 +44,8 @@ REQUIRED = {0x6040: "Controlword", 0x6041: "Statusword", 0x6060: "Modes of opera
             0x6061: "Modes of operation display"}
 COMMS = {0x1001: "Error register", 0x1017: "Producer heartbeat time",
          0x1018: "Identity object"}
+SYNC_PERIOD_US = 1000  # 1 kHz: the cycle most drives expect in cyclic synchronous modes
+MAX_SYNC_EVERY = 240  # CiA 301: TPDO transmission types 1..240 = every n-th SYNC
 _OBJECT = re.compile(r"^0x([0-9A-Fa-f]{4}):(?:0x)?([0-9A-Fa-f]{1,2})$")
 _COMMENTS = re.compile(r"(?ims)^\[Comments\][^\[]*")
 
@@ -65,6 +75,7 @@ class DriveFile:
     host_node_id: int
     heartbeat_ms: int
     status_period_ms: int
+    sync_period_us: int
     tension_actual: ObjectRef
     tension_target: ObjectRef
     position_actual: ObjectRef
@@ -74,6 +85,11 @@ class DriveFile:
     @property
     def name(self) -> str:
         return f"cia402 ({self.eds.name})"
+
+    @property
+    def sync_every(self) -> int:
+        """SYNCs per status period: the cyclic TPDO transmission type under SYNC."""
+        return self.status_period_ms * 1000 // self.sync_period_us
 
     def object_dictionary(self, node_id: int) -> canopen.ObjectDictionary:
         """The drive's object dictionary for ``node_id`` (``$NODEID`` resolved)."""
@@ -189,5 +205,20 @@ def load_drive_file(path: str | Path) -> DriveFile:
     host = int(data.get("host_node_id", 127))
     if not 1 <= host <= 127:
         raise DriveFileError(f"{path}: host_node_id must be 1..127, got {host}")
-    return DriveFile(path, eds, host, int(data.get("heartbeat_ms", 50)),
-                     int(data.get("status_period_ms", 10)), **refs)
+    status_ms = _whole(path, data, "status_period_ms", 10, 1, 60_000)
+    sync_us = _whole(path, data, "sync_period_us", SYNC_PERIOD_US, 100, 1_000_000)
+    every, left = divmod(status_ms * 1000, sync_us)
+    if left or not 1 <= every <= MAX_SYNC_EVERY:
+        raise DriveFileError(f"{path}: status_period_ms {status_ms} must be 1 to "
+                             f"{MAX_SYNC_EVERY} whole SYNC periods (sync_period_us {sync_us}): "
+                             "a TPDO goes out every n-th SYNC; e.g. 10 ms with 1000 us")
+    return DriveFile(path, eds, host, int(data.get("heartbeat_ms", 50)), status_ms, sync_us,
+                     **refs)
+
+
+def _whole(path: Path, data: dict, key: str, default: int, lo: int, hi: int) -> int:
+    value = data.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+        raise DriveFileError(f"{path}: {key} must be a whole number from {lo} to {hi}, "
+                             f"got {value!r}")
+    return value

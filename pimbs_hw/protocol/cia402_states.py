@@ -29,8 +29,9 @@ DISABLE_VOLTAGE = 0x00  # -> Switch on disabled
 FAULT_RESET = 0x80  # rising edge of bit 7: Fault -> Switch on disabled
 # modes of operation (0x6060 / 0x6061) and their bits in Supported drive modes (0x6502)
 MODES = {1: "profile position", 4: "profile torque", 8: "cyclic synchronous position",
-         10: "cyclic synchronous torque"}
-MODE_BIT = {1: 0, 4: 3, 8: 7, 10: 9}
+         9: "cyclic synchronous velocity", 10: "cyclic synchronous torque"}
+MODE_BIT = {1: 0, 4: 3, 8: 7, 9: 8, 10: 9}
+CYCLIC = frozenset({8, 9, 10})  # the cyclic synchronous modes: they run on the bus's SYNC
 # error register (0x1001) bits (CiA 301)
 ERROR_REGISTER = ("generic", "current", "voltage", "temperature", "communication",
                   "device profile", "reserved", "manufacturer")

@@ -26,6 +26,15 @@ def _ids(ids: set[int]) -> str:
     return text + (f" and {len(shown) - 6} more" if len(shown) > 6 else "")
 
 
+def _fewer_boards(robot) -> str:
+    """What to do about a board id out of the protocol's range."""
+    if robot.mjcf_path is not None and robot.muscle_path == robot.mjcf_path:
+        return (f"an MJCF's tendons get boards 1, 2, ... in file order: write a muscle file "
+                f"naming {robot.mjcf_path.name} ('mjcf:') that lists the tendons on this bus "
+                "under 'muscles' with their board_id")
+    return f"give it a board_id in range in {robot.muscle_path.name}"
+
+
 def check_ids(robot, protocols: Sequence[BoardProtocol]) -> None:
     """Raise ``IdCollision`` naming both boards and the ids they share."""
     owners: list[tuple[str, set[int]]] = []
@@ -33,7 +42,12 @@ def check_ids(robot, protocols: Sequence[BoardProtocol]) -> None:
         for i in proto.indices:
             spec = robot.muscles[i]
             owner = f"muscle {spec.name} (board {spec.board_id}, {proto.name})"
-            ids = proto.ids_used(i)
+            try:
+                ids = proto.ids_used(i)
+            except ValueError as exc:  # a board id the protocol has no CAN ids for
+                raise IdCollision(f"{robot.muscle_path}: {owner}: {exc}, so one bus carries "
+                                  f"no such board ({len(robot.muscles)} muscles here); "
+                                  f"{_fewer_boards(robot)}") from exc
             if ids and max(ids) > MAX_STANDARD_ID:
                 raise IdCollision(f"{robot.name}: {owner} would use CAN ids up to "
                                   f"0x{max(ids):X}, beyond the 11-bit 0x7FF; give it a lower "

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections.abc import Iterator
 from typing import Any
 
 import can
+from can.broadcastmanager import ThreadBasedCyclicSendTask
 
 from pimbs_hw.errors import PortError
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.safety import BusOff, LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
 
@@ -121,8 +124,9 @@ class CanTransport(QueuedTransport):
     """Frames over python-can, received by a ``can.Notifier`` thread."""
 
     def __init__(self, port: str, *, corrupt_per_s: int = 3, hint: str = _HINT,
-                 **bus_kwargs: Any) -> None:
+                 send_timeout_s: float = SEND_TIMEOUT_S, **bus_kwargs: Any) -> None:
         super().__init__(port or "default", corrupt_per_s)
+        self.send_timeout_s = send_timeout_s
         kwargs = {**parse_can_port(port), **bus_kwargs}
         with _python_can_warnings() as logged:
             try:
@@ -134,6 +138,11 @@ class CanTransport(QueuedTransport):
                 raise PortError(self.port, _open_hint(self.port, kwargs, said, hint),
                                 problem=said) from exc
         self._notifier = can.Notifier(self.bus, [_Listener(self)], timeout=0.05)
+        # the kernel's broadcast manager times periodic frames on SocketCAN; elsewhere a
+        # python-can thread does, and it must not interleave its writes with ours (SLCAN)
+        self._kernel_periodic = kwargs.get("interface") == "socketcan"
+        self._send_lock = threading.Lock()
+        self._periodic: list[can.broadcastmanager.CyclicSendTaskABC] = []
 
     def _alive(self) -> SafetyStop | None:
         exc = self._notifier.exception
@@ -149,12 +158,21 @@ class CanTransport(QueuedTransport):
         return None
 
     def _send(self, msg: can.Message) -> None:
+        """Send one frame; a failure is a lost link, unless the send waited out its timeout
+        while this program could not run for most of it (``HostLag``: an adapter emulated in
+        this process, or this process's own I/O, could not move meanwhile). Then that frame
+        is dropped, and the next cycle's command goes out as usual."""
         self.check()
+        start = time.monotonic()
         try:
-            self.bus.send(msg, timeout=SEND_TIMEOUT_S)
+            with self._send_lock:
+                self.bus.send(msg, timeout=self.send_timeout_s)
         except can.CanError as exc:
-            self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
-            raise self._fault from exc  # type: ignore[misc]
+            end = time.monotonic()
+            if end - start < 0.9 * self.send_timeout_s or host_lag().starved(start, end) < 0.5 * (
+                    end - start):
+                self._fail(LinkLost(f"CAN send failed: {exc}", port=self.port))
+                raise self._fault from exc  # type: ignore[misc]
 
     def send(self, arbitration_id: int, data: bytes) -> None:
         self._send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
@@ -162,6 +180,26 @@ class CanTransport(QueuedTransport):
     def send_error(self, error_class: int) -> None:
         self._send(can.Message(arbitration_id=error_class, is_error_frame=True,
                                is_extended_id=False, dlc=0))
+
+    def send_periodic(self, arbitration_id: int, data: bytes, period_s: float):
+        """Send a frame every ``period_s`` until the returned task's ``stop()`` or ``close``
+        (CANopen SYNC): by the kernel on SocketCAN, else by python-can's send thread, which
+        catches up after a stall instead of skipping frames. A failed send ends it and is
+        this transport's next ``LinkLost``."""
+        self.check()
+        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
+        if self._kernel_periodic:
+            task = self.bus.send_periodic(msg, period_s)
+        else:
+            def failed(exc: Exception) -> bool:
+                if not self.closed:
+                    self._fail(LinkLost(f"CAN send failed (frame 0x{arbitration_id:03X} every "
+                                        f"{period_s * 1e3:g} ms): {exc}", port=self.port))
+                return False
+            task = ThreadBasedCyclicSendTask(self.bus, self._send_lock, msg, period_s,
+                                             on_error=failed)
+        self._periodic.append(task)
+        return task
 
     def add_listener(self, listener: can.Listener) -> None:
         """Also hand every received frame to ``listener`` (in the receive thread): a
@@ -175,5 +213,7 @@ class CanTransport(QueuedTransport):
         if self.closed:
             return
         self.closed = True
+        for task in self._periodic:
+            task.stop()
         self._notifier.stop(timeout=1.0)
         self.bus.shutdown()

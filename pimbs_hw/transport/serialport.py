@@ -18,6 +18,7 @@ from typing import Protocol
 import serial
 
 from pimbs_hw.errors import PortError
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.protocol.framing import FrameDecoder, pack_frame
 from pimbs_hw.safety import LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
@@ -73,10 +74,10 @@ class PtyMaster:
                 pass
 
 
-def _open_serial(port: str, baudrate: int) -> serial.SerialBase:
+def _open_serial(port: str, baudrate: int, write_timeout_s: float) -> serial.SerialBase:
     try:
         stream = serial.serial_for_url(port, baudrate=baudrate, timeout=READ_TIMEOUT_S,
-                                       write_timeout=WRITE_TIMEOUT_S)
+                                       write_timeout=write_timeout_s)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PortError(port, f"cannot open serial port {port!r} ({exc}): is the board plugged "
                               "in (`ls /dev/ttyUSB* /dev/ttyACM*`) and are you in the dialout "
@@ -89,10 +90,12 @@ class SerialTransport(QueuedTransport):
     """Frames over a byte stream, received by a reader thread."""
 
     def __init__(self, port: str | ByteStream, *, baudrate: int = 1_000_000,
-                 corrupt_per_s: int = 3, name: str | None = None) -> None:
+                 corrupt_per_s: int = 3, name: str | None = None,
+                 send_timeout_s: float = WRITE_TIMEOUT_S) -> None:
         label = name or (port if isinstance(port, str) else repr(port))
         super().__init__(label, corrupt_per_s)
-        self.stream: ByteStream = _open_serial(port, baudrate) if isinstance(port, str) else port
+        self.stream: ByteStream = (_open_serial(port, baudrate, send_timeout_s)
+                                   if isinstance(port, str) else port)
         self._decoder = FrameDecoder()
         self._write_lock = threading.Lock()
         self._thread = threading.Thread(target=self._reader, name=f"serial-rx {label}",
@@ -122,10 +125,21 @@ class SerialTransport(QueuedTransport):
         return LinkLost("serial reader thread is not running", port=self.port)
 
     def _write(self, frame: bytes) -> None:
+        """Write one frame; a buffer that stays full for the write timeout is a lost link,
+        unless this program could not run for most of that time (``HostLag``): then whoever
+        reads the other end (simulated boards in this process, or this process's own reader)
+        could not drain it either. That frame is lost (a board drops a torn one by its CRC)
+        and the next cycle's command goes out as usual."""
         self.check()
+        start = time.monotonic()
         try:
             with self._write_lock:
                 self.stream.write(frame)
+        except serial.SerialTimeoutException as exc:
+            end = time.monotonic()
+            if host_lag().starved(start, end) < 0.5 * (end - start):
+                self._fail(LinkLost(f"serial write failed: {exc}", port=self.port))
+                raise self._fault from exc  # type: ignore[misc]
         except (serial.SerialException, OSError) as exc:
             self._fail(LinkLost(f"serial write failed: {exc}", port=self.port))
             raise self._fault from exc  # type: ignore[misc]

@@ -161,8 +161,16 @@ def length_weights(physics: Physics, data: Samples) -> tuple[np.ndarray, dict]:
     tense = data.tension > np.median(data.tension)
     sigma_l = float(max(np.median([np.sqrt(np.mean(r_len[tense[:, j], j] ** 2))
                                    for j in range(r_len.shape[1]) if tense[:, j].any()]), 1e-7))
-    ratio = np.abs(physics.kappa) * sigma_f / ((1.0 + np.maximum(data.tension, 0.0)) * sigma_l)
-    return 1.0 / np.sqrt(1.0 + ratio**2), {"tension_N": sigma_f, "length_m": sigma_l}
+    return (stretch_weights(physics.kappa, data.tension, sigma_f, sigma_l),
+            {"tension_N": sigma_f, "length_m": sigma_l})
+
+
+def stretch_weights(kappa: np.ndarray, tension: np.ndarray, sigma_f: float, sigma_l: float
+                    ) -> np.ndarray:
+    """(B, M) weight of each length: encoder noise against the loadcell noise its stretch
+    inherits, ``|κ|·σ_f/(1 + f)``."""
+    ratio = np.abs(kappa) * sigma_f / ((1.0 + np.maximum(tension, 0.0)) * sigma_l)
+    return 1.0 / np.sqrt(1.0 + ratio**2)
 
 
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:
@@ -250,3 +258,41 @@ def tie_to_reference(physics: Physics, real: Samples, ref: Samples) -> Physics |
     # be explained by joint offsets and loadcell errors that are not there
     ratio = np.max(shifted.sigma_len / free.sigma_len)
     return tied if ratio < ROUTING_MATCH else None
+
+
+def combine(parts: list[Paired]) -> Paired:
+    """Several recordings of one arm as one data set (a first recording and the poses
+    collected to settle what it could not tell apart).
+
+    Rows are stacked; each keeps the zeroing temperature of its own session (a collection
+    zeroes its loadcells at its start), so a thermal drift is anchored per session. The
+    physics (gravity function, body schema) is then fitted on all rows together.
+    """
+    first = parts[0]
+    if len(parts) == 1:
+        return first
+    for p in parts[1:]:
+        if p.joints != first.joints or p.muscles != first.muscles:
+            raise DiagnosisInputError(
+                "the recordings describe different arms: joints/muscles "
+                f"{first.joints}/{first.muscles} vs {p.joints}/{p.muscles}; diagnose "
+                "recordings of one arm together")
+    if len({p.reference is None for p in parts}) > 1:
+        raise DiagnosisInputError(
+            "give one --reference per recording (`pimbs simulate --poses-file` makes the one "
+            "for a poses file), or none and --robot")
+
+    def stack(samples: list[Samples], zero: list[np.ndarray]) -> Samples:
+        out = Samples(**{k: np.concatenate([getattr(s, k) for s in samples])
+                         for k in ("theta", "tension", "length", "temperature", "approach",
+                                   "tau", "time", "sample")})
+        out.temp_zero = np.concatenate([np.broadcast_to(z, s.tension.shape)
+                                        for s, z in zip(samples, zero, strict=True)])
+        out.session = np.concatenate([np.full(s.n, i) for i, s in enumerate(samples)])
+        return out
+
+    zeros = [p.temp_zero for p in parts]
+    real = stack([p.real for p in parts], zeros)
+    ref = None if first.reference is None else stack([p.reference for p in parts], zeros)
+    return Paired(real, ref, first.joints, first.muscles, first.temp_zero,
+                  first.temp_zero_source)

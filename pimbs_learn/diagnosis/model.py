@@ -96,6 +96,10 @@ class Samples:
     # (B, M) weight of each length in the fit: a slack muscle's stretch log1p(f)/K is
     # dominated by loadcell noise (d/df = 1/(K(1+f))), so its length says little.
     len_weight: np.ndarray | None = None
+    # (B, M) °C at which each row's loadcells were zeroed, when the rows come from several
+    # recordings (each zeroes its loadcells at its start); None: ``Physics.temp_zero``
+    temp_zero: np.ndarray | None = None
+    session: np.ndarray | None = None  # (B,) which recording each row came from
 
     def rows(self, idx: np.ndarray) -> Samples:
         return Samples(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
@@ -169,7 +173,8 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
             f[:, u.index] -= p
         elif u.effect == "thermal_drift":
             j = slice(None) if u.part == "common" else u.index
-            f[:, j] -= p * (data.temperature[:, j] - physics.temp_zero[j])
+            t0 = physics.temp_zero[None, :] if data.temp_zero is None else data.temp_zero
+            f[:, j] -= p * (data.temperature[:, j] - t0[:, j])
         elif u.effect == "tension_gain":
             scale[u.index] = 1.0 / (1.0 + p)
         elif u.effect == "tendon_friction":

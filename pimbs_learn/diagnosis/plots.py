@@ -38,7 +38,11 @@ def write_plots(result: dict, internals: dict, out_dir: str | Path) -> list[Path
 
 
 def _effects_label(result: dict) -> str:
-    return " + ".join(e["name"] for e in result["effects"])
+    """The fitted model's effects: those named, and for what the recording cannot tell
+    apart the first explanation, marked as one of several."""
+    return " + ".join([e["name"] for e in result["effects"]]
+                      + [f"{a['either'][0]['name']} (or {len(a['either']) - 1} other)"
+                         for a in result.get("ambiguous", [])])
 
 
 def _torque_residuals(theta: np.ndarray, before: np.ndarray, after: np.ndarray | None,

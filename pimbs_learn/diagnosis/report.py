@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2
 
+from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.detect import detectable_text
 from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
-from pimbs_learn.diagnosis.select import Candidate
+from pimbs_learn.diagnosis.select import P_VALUE, Candidate
 
 
 def _se(fit: Fit, i: int) -> float | None:
@@ -111,17 +113,164 @@ def effect_entry(cand: Candidate, physics: Physics, data: Samples, joints: list[
     }
 
 
+MAX_EITHER = 4  # more explanations than this that fit alike: "unexplained", with where
+
+
+def _explanation(effect: str, units: list, fit: Fit, lr: float, delta_bic: float,
+                 physics: Physics, data: Samples, joints: list[str], muscles: list[str]
+                 ) -> dict:
+    cand = Candidate(effect, units, fit, lr, len(units), float(chi2.sf(lr, len(units))),
+                     delta_bic, {}, None)
+    params, names_m, names_j = parameters(cand, physics, joints, muscles, fit)
+    if effect != "joint_offset":
+        names_j = effect_joints(cand, physics, data, joints, fit)
+    return {"name": effect, "muscles": names_m, "joints": names_j, "parameters": params,
+            "likelihood_ratio": lr, "df": len(units), "delta_bic": float(delta_bic)}
+
+
+def ambiguity_entry(verdict: Verdict, physics: Physics, data: Samples, joints: list[str],
+                    muscles: list[str], final: Fit) -> dict:
+    """An effect the selection picked whose evidence does not survive its confounders: every
+    explanation that fits, each with its own fit and how much better or worse it is."""
+    a = verdict.named
+    options = [_explanation(a.effect, a.units, final, verdict.lr, verdict.delta_bic, physics,
+                            data, joints, muscles)]
+    for r in verdict.rivals:
+        entry = _explanation(r.effect, r.units, r.fit, r.lr, r.delta_bic, physics, data,
+                             joints, muscles)
+        held = r.heldout
+        entry["beside_the_first"] = {
+            "likelihood_ratio_of_first_given_this": r.lr_named_given,
+            "likelihood_ratio_of_this_given_first": r.lr_given_named,
+            "heldout_gain_of_first_given_this": None if held is None else held.gain,
+            "heldout_likelihood_ratio_of_first_given_this": None if held is None else held.lr,
+            "heldout_z_of_first_given_this": None if held is None else held.z,
+            "heldout_rows_better_with_first": None if held is None else held.improved}
+        options.append(entry)
+    best = max(o["delta_bic"] for o in options)
+    for o in options:
+        o["delta_bic_behind_best"] = best - o["delta_bic"]
+    return {"either": options,
+            "meaning": "each explanation alone fits the mismatch; what the first adds beside "
+                       "another is not confirmed (likelihood ratio, BIC and held-out rows), "
+                       "so this recording cannot tell which it is"}
+
+
+def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:
+    """An effect the recordings disagree on: one prefers it, another a rival."""
+    return {"why": "the recordings disagree on what explains the mismatch",
+            "candidates": [verdict.named.effect, *(c[0] for c in verdict.contradictions)],
+            "per_recording": [
+                {"rival": effect, "units": [u.label for u in units],
+                 "likelihood_ratio_of_first_over_rival": dict(zip(recordings, per,
+                                                                  strict=True))}
+                for effect, units, per in verdict.contradictions]}
+
+
+def unexplained(ambiguous: list[dict], residual: dict, location: dict,
+                disputed: list[dict] = ()) -> list[dict]:
+    """Mismatch no identifiable effect accounts for, with where it is: structure left after
+    every fitted explanation, ambiguities with more explanations than can be listed, and
+    effects the recordings disagree on."""
+    out = [{**d, "where": location["summary"]} for d in disputed]
+    for amb in ambiguous:
+        if len(amb["either"]) > MAX_EITHER:
+            out.append({"why": f"{len(amb['either'])} effects explain it about equally",
+                        "candidates": [o["name"] for o in amb["either"]],
+                        "where": location["summary"]})
+    if not residual["consistent_with_noise"]:
+        out.append({"why": "what is left after the fitted effects is not noise",
+                    "where": [f"{s['channel']} depends on "
+                              + ", ".join(w["factor"] for w in s["depends_on"][:3])
+                              for s in residual["structure"]]})
+    return out
+
+
+def _option_line(o: dict) -> list[str]:
+    who = ", ".join(o["muscles"] + o["joints"])
+    lines = [f"{o['name']} ({who})  ΔBIC {o['delta_bic']:.0f}"
+             + (f", {o['delta_bic_behind_best']:.0f} behind the best"
+                if o["delta_bic_behind_best"] > 0.5 else ", the best fit")]
+    lines += _parameter_lines(o["parameters"])
+    return lines
+
+
+def _parameter_lines(parameters: dict) -> list[str]:
+    out = []
+    for unit, values in parameters.items():
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in values.items()
+                          if isinstance(v, float) and k != "se")
+        se = values.get("se")
+        out.append(f"       {unit}: {shown}" + (f" (± {se:.2g})" if se else ""))
+    return out
+
+
+def ambiguity_text(result: dict) -> list[str]:
+    lines = []
+    for amb in result.get("ambiguous", []):
+        if len(amb["either"]) > MAX_EITHER:
+            continue  # listed as unexplained
+        first, *others = amb["either"]
+        lines.append("Cannot tell apart: each explains the mismatch, and this recording does "
+                     "not separate them:")
+        for i, o in enumerate(amb["either"]):
+            head, *rest = _option_line(o)
+            lines.append(f"  {'either' if i == 0 else '    or'} {head}")
+            lines += rest
+        for o in others:
+            b = o["beside_the_first"]
+            held = b["heldout_likelihood_ratio_of_first_given_this"]
+            lines.append(f"  beside {o['name']}, {first['name']} adds a likelihood ratio of "
+                         f"{b['likelihood_ratio_of_first_given_this']:.0f}"
+                         + ("" if held is None else f", {held:.0f} on held-out rows")
+                         + f"; naming needs {chi2.isf(P_VALUE, first['df']):.0f}"
+                         + ("" if held is None else " in both"))
+        poses = amb.get("separating_poses")
+        if poses:
+            lines.append(f"  {len(poses['poses'])} poses that would tell them apart "
+                         f"(expected likelihood ratio {poses['expected_likelihood_ratio']:.0f}"
+                         f" between them): collect them with `pimbs collect --poses-file "
+                         f"FILE` (written by --poses-out) and diagnose both recordings "
+                         "together")
+        elif "separating_poses" not in amb:
+            lines.append("  give --robot to get the poses that would tell them apart")
+        else:
+            lines.append(f"  {amb.get('separating_poses_note', 'no poses proposed')}")
+        lines.append("")
+    for u in result.get("unexplained", []):
+        lines.append(f"Unexplained ({u['why']}"
+                     + (": " + ", ".join(u["candidates"]) if u.get("candidates") else "")
+                     + "); where:")
+        for d in u.get("per_recording", []):
+            lines.append(f"  {u['candidates'][0]} against {d['rival']}, likelihood ratio per "
+                         "recording: " + ", ".join(
+                             f"{path} {lr:+.0f}" for path, lr in
+                             d["likelihood_ratio_of_first_over_rival"].items()))
+        lines += [f"  - {w}" for w in u["where"]]
+        lines.append("")
+    return lines
+
+
 def text_report(result: dict) -> str:
-    lines = [f"PIMBS diagnosis of {result['real']}"
-             + (f" against {result['reference']}" if result.get("reference") else
-                f" against robot description {result.get('robot')}"),
+    recs = result.get("recordings") or [{"real": result["real"],
+                                         "reference": result.get("reference")}]
+    against = (" and ".join(r["reference"] for r in recs) if recs[0]["reference"] else
+               f"robot description {result.get('robot')}")
+    lines = [f"PIMBS diagnosis of {' and '.join(r['real'] for r in recs)} against {against}"
+             + (" (together)" if len(recs) > 1 else ""),
              f"  {result['rows']} paired samples, {len(result['joints'])} joints, "
              f"{len(result['muscles'])} muscles; body schema: degree-"
              f"{result['model']['schema_degree']} polynomial, {result['model']['schema']}", "",
              "Where it disagrees (before any effect is modelled):"]
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")
-    if not result["effects"]:
+    unsure = bool(result.get("ambiguous") or result.get("unexplained"))
+    if not result["effects"] and unsure:
+        parts = (["the explanations this recording cannot tell apart"]
+                 * bool(result.get("ambiguous"))
+                 + ["what no effect explains"] * bool(result.get("unexplained")))
+        lines.append(f"No effect identified; below, {' and '.join(parts)}.")
+    elif not result["effects"]:
         lines.append("No significant missing physics: no candidate passed the "
                      "likelihood-ratio, BIC and cross-validation tests (see below whether "
                      "this recording could have seen one).")
@@ -129,18 +278,20 @@ def text_report(result: dict) -> str:
         lines.append("Missing physics, most significant first:")
         for i, e in enumerate(result["effects"], 1):
             ev = e["evidence"]
-            who = ", ".join(e["muscles"] + e["joints"])
+            # the units its parameters belong to: muscles, or joints for a joint offset or a
+            # link mass (the JSON's "joints" of a muscle effect are the joints it loads)
+            who = ", ".join(e["muscles"] or e["joints"])
             lines.append(f"  {i}. {e['name']} ({who})  ΔBIC {ev['delta_bic']:.0f}, "
                          f"p {ev['p_value']:.1e}, held-out gain {100 * ev['cv_gain']:.0f} %")
-            for unit, values in e["parameters"].items():
-                shown = ", ".join(f"{k} {v:.4g}" for k, v in values.items()
-                                  if isinstance(v, float) and k != "se")
-                se = values.get("se")
-                lines.append(f"       {unit}: {shown}" + (f" (± {se:.2g})" if se else ""))
+            lines += _parameter_lines(e["parameters"])
+    more = ambiguity_text(result)
+    if more:
+        lines += [""] + more[:-1]
     if "residual" in result:
         lines += [""] + leftover_text(result["residual"])
     if "detectable" in result:
-        lines += [""] + detectable_text(result["detectable"], not result["effects"])
+        lines += [""] + detectable_text(result["detectable"], not result["effects"]
+                                        and not unsure)
     fit = result["fit"]
     lines += ["", f"Held-out fit ({fit['metric']}): before {fit['before']:.4g} → after "
                   f"{fit['after']:.4g}",

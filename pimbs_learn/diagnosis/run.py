@@ -7,55 +7,75 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from pimbs_learn.diagnosis.confound import judge
 from pimbs_learn.diagnosis.detect import detectable
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import (
     MIN_SAMPLES,
     DiagnosisInputError,
     build_physics,
+    combine,
     pair,
     too_few_samples,
 )
 from pimbs_learn.diagnosis.leftover import leftover
 from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
-from pimbs_learn.diagnosis.report import effect_entry
+from pimbs_learn.diagnosis.report import (
+    ambiguity_entry,
+    disputed_entry,
+    effect_entry,
+    unexplained,
+)
 from pimbs_learn.diagnosis.select import select_effects
 from pimbs_recording.format import Recording, read_recording, write_recording
 
+Source = str | Path | Recording
+DESIGN_POSES = 30  # poses proposed to settle an ambiguity: a few minutes on a real arm
 FIT_METRIC = ("mean squared held-out residual of lengths and torques, each channel "
               "divided by its noise level under the model without effects (5-fold CV)")
 
 
-def diagnose(real: str | Path | Recording, reference: str | Path | Recording | None = None,
+def diagnose(real: Source | list[Source], reference: Source | list[Source] | None = None,
              robot: str | Path | None = None, effects: tuple[str, ...] = EFFECTS,
-             progress=None) -> tuple[dict, dict]:
+             progress=None, design_poses: int = DESIGN_POSES) -> tuple[dict, dict]:
     """Diagnose ``real`` against a paired ``reference`` recording and/or a robot description.
 
-    Returns (result, internals): ``result`` is the JSON-ready report; ``internals`` holds
-    the fitted objects for plots and for writing a corrected recording.
+    ``real`` may be several recordings of one arm (a first session and the poses collected
+    to settle what it could not tell apart), each with its own reference (same order) or
+    all paired with the robot description. Returns (result, internals): ``result`` is the
+    JSON-ready report; ``internals`` holds the fitted objects for plots and for writing a
+    corrected recording. With a robot description, explanations the recordings cannot
+    tell apart come with ``design_poses`` poses that would (``design``).
     """
-    real_rec = real if isinstance(real, Recording) else read_recording(real)
-    ref_rec = (reference if isinstance(reference, Recording) or reference is None
-               else read_recording(reference))
-    if ref_rec is None and robot is None:
+    reals = [_read(r) for r in (real if isinstance(real, list | tuple) else [real])]
+    refs = reference if isinstance(reference, list | tuple) else (
+        [] if reference is None else [reference])
+    refs = [_read(r) for r in refs]
+    if not refs and robot is None:
         raise DiagnosisInputError("give --reference SIM.parquet (same commanded poses) or "
                                   "--robot NAME|PATH (the robot description)")
+    if refs and len(refs) != len(reals):
+        raise DiagnosisInputError(
+            f"{len(reals)} recordings and {len(refs)} references: give one --reference per "
+            "recording, in the same order (`pimbs simulate --poses-file` makes the one for a "
+            "poses file), or none and --robot")
     arm, kappa = None, None
     if robot is not None:
         from pimbs_arm.model import ArmModel
 
         arm = ArmModel.load(robot)
-        if list(arm.joints) != real_rec.joints or list(arm.muscles) != real_rec.muscles:
-            raise DiagnosisInputError(
-                f"{real_rec.path} does not match robot {arm.robot.name}: recording joints "
-                f"{real_rec.joints}, muscles {real_rec.muscles}; description joints "
-                f"{list(arm.joints)}, muscles {list(arm.muscles)}")
-        if ref_rec is None:
+        for rec in reals:
+            if list(arm.joints) != rec.joints or list(arm.muscles) != rec.muscles:
+                raise DiagnosisInputError(
+                    f"{rec.path} does not match robot {arm.robot.name}: recording joints "
+                    f"{rec.joints}, muscles {rec.muscles}; description joints "
+                    f"{list(arm.joints)}, muscles {list(arm.muscles)}")
+        if not refs:
             kappa = -1.0 / arm.K  # PIMBS' own sign convention (l = h − Δn)
-    paired = pair(real_rec, ref_rec, arm)
+    paired = combine([pair(rec, refs[i] if refs else None, arm) for i, rec in enumerate(reals)])
     if paired.real.n < MIN_SAMPLES:
-        raise too_few_samples(real_rec.path, paired.real.n)
+        raise too_few_samples(reals[0].path, paired.real.n)
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
     null = fit_effects(physics, data, [], key="full")
@@ -64,38 +84,73 @@ def diagnose(real: str | Path | Recording, reference: str | Path | Recording | N
     # held-out score of the final model on the null model's noise scale (the "before")
     cv_final = (cross_validate(physics, data, final.units, (null.sigma_len, null.sigma_tau),
                                x0=final.params) if named else cv_null)
+    # each named effect against its confounders: the others refitted in its place
+    verdicts = [judge(physics, data, final, cand, effects) for cand in named]
+    sure = [v.named for v in verdicts if v.identified]
+    unsure = [v for v in verdicts if v.rivals and not v.contradictions]
+    disputed = [v for v in verdicts if v.contradictions]
+    corrected = final
+    if unsure or disputed:  # what --corrected undoes: the identified effects alone
+        units = [u for c in sure for u in c.units]
+        corrected = fit_effects(physics, data, units, key="full", x0=np.array(
+            [final.params[final.units.index(u)] for u in units]))
 
     r_len, r_tau = evaluate(physics, null, data, key="full")
     location = locate(physics, null, data, r_len, r_tau, paired.joints, paired.muscles,
                       paired.reference)
     entries = [effect_entry(cand, physics, data, paired.joints, paired.muscles, final)
-               for cand in named]
+               for cand in sure]
+    ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
+                 for v in unsure]
+    if arm is not None and design_poses > 0 and unsure:
+        from pimbs_arm.model import InfeasiblePoseError
+        from pimbs_learn.diagnosis.design import separating_poses
+
+        for v, entry in zip(unsure, ambiguous, strict=True):
+            try:
+                entry["separating_poses"] = separating_poses(
+                    arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
+            except InfeasiblePoseError as exc:  # an explanation the arm could not hold
+                entry["separating_poses"] = None
+                entry["separating_poses_note"] = f"no poses proposed: {exc}"
+    residual = leftover(physics, final, data, paired.joints, paired.muscles,
+                        paired.reference)
+    sources = [str(r.path) for r in reals]
     result = {
-        "real": str(real_rec.path), "reference": None if ref_rec is None else str(ref_rec.path),
+        "real": sources[0], "reference": str(refs[0].path) if refs else None,
         "robot": None if arm is None else arm.robot.name,
+        **({"recordings": [{"real": s, "reference": str(refs[i].path) if refs else None}
+                           for i, s in enumerate(sources)]} if len(reals) > 1 else {}),
         "rows": data.n, "joints": paired.joints, "muscles": paired.muscles,
         "effects": entries,
+        "ambiguous": ambiguous,
+        "unexplained": unexplained(ambiguous, residual, location,
+                                   [disputed_entry(v, sources) for v in disputed]),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
                 "length_rms_m": {"before": cv_null["length_rms"],
                                  "after": cv_final["length_rms"]}},
         "location": location,
-        "residual": leftover(physics, final, data, paired.joints, paired.muscles,
-                             paired.reference),
+        "residual": residual,
         "detectable": detectable(physics, data, final, paired.joints, paired.muscles, effects),
         "candidates": [{"name": c.effect, "units": [u.label for u in c.units],
                         "likelihood_ratio": c.lr, "df": c.df, "delta_bic": float(c.delta_bic),
                         "rank_delta_bic": _finite(c.rank_bic),
                         "cv_gain": _finite(c.cv_gain), "cv_z": _finite(c.cv_z),
                         "named": any(c.effect == n.effect and set(c.units) <= set(n.units)
-                                     for n in named)} for c in tried],
+                                     for n in sure)} for c in tried],
         "model": {**model_info, "noise_torque_Nm": null.sigma_tau.tolist(),
                   "noise_length_m": null.sigma_len.tolist()},
     }
     internals = {"physics": physics, "data": data, "null": null, "final": final,
-                 "paired": paired, "recording": real_rec}
+                 "corrected": corrected, "paired": paired, "recording": reals[0],
+                 "recordings": reals, "verdicts": verdicts}
     return result, internals
+
+
+def _read(source: Source) -> Recording:
+    return source if isinstance(source, Recording) else read_recording(source)
 
 
 def _finite(x: float) -> float | None:
@@ -106,11 +161,17 @@ def _finite(x: float) -> float | None:
 def write_corrected(internals: dict, path: str | Path) -> None:
     """The real recording with the named effects undone: true tensions, angles, gravity.
 
+    Only effects the recording identifies are undone: of two explanations it cannot tell
+    apart, correcting either would be a guess.
+
     Rows are those paired with the reference; extra columns and metadata are kept, and the
     metadata says what was corrected, so training on it is traceable.
     """
-    physics, data, final = internals["physics"], internals["data"], internals["final"]
+    physics, data, final = internals["physics"], internals["data"], internals["corrected"]
     rec: Recording = internals["recording"]
+    if len(internals.get("recordings", [rec])) > 1:
+        raise DiagnosisInputError("--corrected writes one recording: diagnose it alone, or "
+                                  "leave --corrected out")
     state = apply_effects(physics, data, final.units, final.params)
     keep = np.isin(rec.sample, data.sample)
     table = rec.table.filter(pa.array(keep))

@@ -1,0 +1,219 @@
+"""Does this recording tell the named effect from its confounders?
+
+Forward selection names the candidate that fits best; a recording may fit another
+explanation nearly as well. On a one-joint arm a loadcell offset on one muscle and a
+heavier or lighter forearm move the same torque (``G_j(θ)·b`` against ``β·τ(θ)``: two
+smooth functions of one angle); a motor whose temperature follows its load makes a thermal
+drift a gain error on that loadcell; a gain common to the loadcells that carry a link
+scales like that link's mass. Naming one with a p-value of 10⁻⁵⁷ claims a certainty the
+recording does not hold.
+
+The rule (``judge``): for a named effect A and every other candidate effect B — B's own
+best units found by the same screen on the model without A, and, for effects that act per
+muscle, B on A's muscles (a drift's load-dependent rivals: a gain or an offset on the
+same loadcell) — refit B in A's place. B is a rival if it explains the mismatch by itself
+(its likelihood-ratio test against the model without A passes, p < ``P_VALUE`` and
+ΔBIC > 0). A survives B only if what A adds *beside* B passes what naming asks of any
+effect, in-sample and held out: the likelihood ratio of (A + B) against B at
+p < ``P_VALUE`` with ΔBIC > 0, and, on five-fold held-out rows, the drop of the whitened
+squared residual summed over rows and channels — the held-out likelihood ratio — past the
+same χ² threshold. That is the backward check the
+selection applies to effects it has named, applied to the explanations it did not pick.
+An A with rivals is reported as "either A or B …", never named alone.
+
+Why not a margin on the two fits' likelihoods: on the elbow with an offset on the long
+triceps and another routing, the lighter forearm fits ΔBIC 18 better than the offset
+(nominally "very strong", a Bayes factor of 8000) and is wrong; the model's own
+approximations (a learned body schema, a fitted gravity function) move likelihoods by tens
+of units. Why the held-out likelihood ratio and not the selection's paired z: beside the
+offset the forearm adds an in-sample ratio of 26 (passes) but 22 held out (fails); when
+the evidence sits in a few designed poses the paired z cannot exceed about √(rows that
+carry it) (the elbow's settling session: held-out ratio 198, z 3.1). Numbers and the rules
+tried: docs/diagnosis-notebook.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
+from pimbs_learn.diagnosis.model import (
+    EFFECTS,
+    Fit,
+    Physics,
+    Samples,
+    Unit,
+    evaluate,
+    units_of,
+)
+from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
+
+PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
+              "elastic_stiffness")
+
+
+@dataclass
+class Rival:
+    """Another explanation B of what the named effect A explains."""
+
+    effect: str
+    units: list[Unit]
+    fit: Fit             # the model without A, with B in its place
+    lr: float            # B against the model without A
+    df: int
+    lr_named_given: float  # A's likelihood ratio given B (A + B against B)
+    lr_given_named: float  # B's likelihood ratio given A (A + B against A)
+    delta_bic: float     # B's ΔBIC against the model without A
+    heldout: Heldout | None = None  # adding A to B on held-out rows (None: the LR failed)
+
+
+@dataclass
+class Verdict:
+    """What the recording says of one named effect."""
+
+    named: Candidate
+    fit: Fit               # the final model, with A
+    without: Fit           # the final model without A
+    lr: float              # A against the model without it (given the other named effects)
+    delta_bic: float
+    rivals: list[Rival]
+    # (effect, units, per-recording likelihood ratio of A over B): recordings that disagree
+    contradictions: list = field(default_factory=list)
+
+    @property
+    def identified(self) -> bool:
+        return not self.rivals and not self.contradictions
+
+
+def passes(lr: float, df: int, n: int) -> bool:
+    """The test every named effect passes: LR at p < ``P_VALUE`` and a positive ΔBIC."""
+    return bool(chi2.sf(lr, df) < P_VALUE and lr - df * np.log(n) > 0)
+
+
+@dataclass
+class Heldout:
+    """How ``larger`` predicts held-out rows against ``smaller`` (five-fold, as selected)."""
+
+    gain: float      # relative drop of the mean whitened squared residual
+    lr: float        # held-out likelihood ratio: Σ over rows and channels of that drop
+    z: float         # paired z of the per-row drops (reported, not a gate)
+    improved: float  # share of rows predicted better (reported)
+    df: int = 1
+
+    @property
+    def confirmed(self) -> bool:
+        """Better on rows the fit never saw by as much as the naming test asks in-sample: a
+        held-out likelihood ratio past the same χ² threshold. (Not also the selection's 1 %
+        held-out gain: measured against a rival that already explains most of the mismatch,
+        1 % of a 400-row, 15-channel recording is a ratio of about 60 — the 5-DOF arm's 4 N
+        offset beside a drift had 83 held out and failed only that.)"""
+        return self.lr >= chi2.isf(P_VALUE, self.df)
+
+
+def heldout(physics: Physics, data: Samples, smaller: Fit, larger: Fit) -> Heldout:
+    """Held-out test of ``larger`` over ``smaller``, both on ``smaller``'s noise scale (so
+    the summed drop of whitened squared residuals is a likelihood ratio with the noise
+    levels held)."""
+    sigma = (smaller.sigma_len, smaller.sigma_tau)
+    before = cross_validate(physics, data, smaller.units, sigma, x0=smaller.params)
+    after = cross_validate(physics, data, larger.units, sigma, x0=larger.params)
+    d = before["per_sample"] - after["per_sample"]
+    z = d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300)
+    return Heldout(float(1.0 - after["score"] / before["score"]), float(d.sum()), float(z),
+                   float(np.mean(d > 0)), len(larger.units) - len(smaller.units))
+
+
+def _sub(fit: Fit, units: list[Unit]) -> np.ndarray:
+    return np.array([fit.params[fit.units.index(u)] for u in units])
+
+
+def _lr(a: Fit, b: Fit) -> float:
+    return max(2.0 * (a.log_lik - b.log_lik), 0.0)
+
+
+def rival_unit_sets(physics: Physics, data: Samples, without: Fit, named: Candidate,
+                    effect: str) -> list[list[Unit]]:
+    """B's own best units on the model without A, and B on A's muscles (per-muscle effects)."""
+    sets = []
+    own = screen(physics, data, without, effect)
+    if own:
+        sets.append(own)
+    if named.effect in PER_MUSCLE and effect in PER_MUSCLE:
+        muscles = sorted({u.index for u in named.units if u.index >= 0})
+        same = [Unit(effect, j) for j in muscles if Unit(effect, j) not in without.units]
+        if same and set(same) != set(own):
+            sets.append(same)
+    if effect == "link_mass" and not own:
+        # one subtree is what a mass can be: the whole arm, the screen's usual first pick
+        group = units_of(effect, data.theta.shape[1], data.tension.shape[1])[0]
+        if not any(u in without.units for u in group):
+            sets.append(group)
+    return sets
+
+
+def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
+          effects: tuple[str, ...] = EFFECTS) -> Verdict:
+    """Refit every other candidate effect in ``named``'s place; keep those it cannot beat."""
+    keep = [u for u in final.units if u not in named.units]
+    without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
+    n, df_a = data.n, len(named.units)
+    lr_a = _lr(final, without)
+    rivals, contradictions = [], []
+    for effect in effects:
+        if effect == named.effect:
+            continue
+        best = None
+        for units in rival_unit_sets(physics, data, without, named, effect):
+            fit_b = fit_effects(physics, data, [*keep, *units], key="full",
+                                x0=np.append(without.params, np.zeros(len(units))))
+            lr_b = _lr(fit_b, without)
+            if passes(lr_b, len(units), n) and (best is None or lr_b > best[2]):
+                best = (units, fit_b, lr_b)
+        if best is None:
+            continue
+        units, fit_b, lr_b = best
+        both_units = [*keep, *named.units, *units]
+        both = fit_effects(physics, data, both_units, key="full",
+                           x0=np.concatenate([_sub(final, keep + named.units),
+                                              _sub(fit_b, units)]))
+        a_given_b = _lr(both, fit_b)
+        split = by_recording(physics, data, final, fit_b)
+        if split is not None:
+            contradictions.append((effect, units, split))
+        held = None
+        if passes(a_given_b, df_a, n):
+            held = heldout(physics, data, fit_b, both)
+            if held.confirmed:
+                continue  # A adds to B what B cannot explain: B is no confounder of A
+        rivals.append(Rival(effect, units, fit_b, lr_b, len(units), a_given_b,
+                            _lr(both, final), lr_b - len(units) * np.log(n), held))
+    rivals.sort(key=lambda r: -r.lr)
+    return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), rivals,
+                   contradictions)
+
+
+def by_recording(physics: Physics, data: Samples, fit_a: Fit, fit_b: Fit) -> list[float] | None:
+    """Per recording, how much better ``fit_a`` explains its rows than ``fit_b`` (a
+    likelihood ratio with ``fit_a``'s noise levels held) — when one recording prefers each
+    by more than the naming test accepts, else None.
+
+    Recordings of one arm must agree on what is wrong with it. When a session designed to
+    separate A from B prefers B while the first prefers A, the models cannot represent the
+    arm on one of them (the elbow with another routing: its learned body schema leaves a
+    torque error of half the mismatch whatever the explanation), and naming either would
+    follow whichever session has more rows.
+    """
+    if data.session is None or len(np.unique(data.session)) < 2:
+        return None
+    sq = []
+    for fit in (fit_a, fit_b):
+        r_len, r_tau = evaluate(physics, fit, data)
+        sq.append(np.sum(np.hstack([r_len / fit_a.sigma_len, r_tau / fit_a.sigma_tau]) ** 2,
+                         axis=1))
+    d = sq[1] - sq[0]
+    per = [float(d[data.session == s].sum()) for s in np.unique(data.session)]
+    need = chi2.isf(P_VALUE, 1)
+    return per if max(per) >= need and min(per) <= -need else None

@@ -1,0 +1,227 @@
+"""The poses that would tell two explanations apart (optimal experiment design).
+
+When the recording fits effect A and its rival B alike (``confound``), the question is
+which poses, held with which tensions, make their predictions differ most — and differ in
+a way the rival's parameters cannot follow once those poses are in the data. Both are
+fitted models; each predicts what the arm would report at any pose:
+
+1. **Candidates**: feasible poses of the seeded plan (``pimbs_arm.poses``), each with three
+   tension floors — its ATL draw, every muscle at its ``f_floor`` (an offset shows in the
+   stretch of a slack muscle) and every muscle high (a gain grows with the tension, an
+   offset does not). Each is checked by the tension QP within the plan's ceiling.
+2. **Predictions**: the arm description with each explanation concealed in it (all effects
+   of that fitted model, as ``pimbs_sim`` conceals them) is simulated at every candidate,
+   noise-free: what the next session would record if that explanation were true.
+3. **Criterion** (T-optimality, Atkinson & Fedorov 1975): if A is true, the rows S add to
+   B's best residual sum of squares (whitened by the noise levels, i.e. the expected
+   likelihood ratio in favour of A)
+   ``Δ_AB(S) = Σ_S |e_i|² − bᵀ (I_B + Σ_S J_iᵀJ_i)⁻¹ b``, ``b = Σ_S J_iᵀ e_i``,
+   where ``e_i`` is B's residual on A's prediction (minus B's residual on its own
+   prediction, so what the model gets wrong either way — the description's routing against
+   the real arm's — cancels), ``J_i`` its derivative in B's parameters and ``I_B`` the
+   information the first recording already holds on them: B may refit, as it will. The
+   design maximises ``min(Δ_AB, Δ_BA)`` over every rival, greedily, pose by pose.
+
+Predictions use the model's routing and the description's link for a link mass (the body a
+joint carries; the proximal shares the diagnosis fits are not simulated), so the expected
+likelihood ratio is a guide; the combined diagnosis is the judge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from pimbs_arm.model import ArmModel
+from pimbs_arm.poses import PosePlan, atl_floor_range, feasible, plan_poses
+from pimbs_arm.poses_file import pose_plan_csv
+from pimbs_learn.diagnosis.confound import Verdict
+from pimbs_learn.diagnosis.inputs import stretch_weights
+from pimbs_learn.diagnosis.model import (
+    Fit,
+    Physics,
+    Samples,
+    Unit,
+    apply_effects,
+    evaluate,
+    fit_schema,
+)
+from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
+from pimbs_sim.effects import T_REF, Effect
+from pimbs_sim.simulate import simulate
+
+POOL = 120          # candidate poses, each with three tension floors
+POOL_SEED = 7919    # the candidates' seed: one plan for one arm, whatever the recording
+
+
+def candidate_pool(arm: ArmModel, n: int = POOL, seed: int = POOL_SEED) -> PosePlan:
+    """Feasible poses with their ATL floors, all floors low, and all floors high."""
+    plan = plan_poses(arm, n, seed, "atl")
+    f_floor = np.array([m.f_floor for m in arm.robot.muscles])
+    high = np.full(arm.n_muscles, atl_floor_range(arm)[1])
+    poses, floors = [], []
+    for theta, drawn in zip(plan.poses, plan.drawn_floors, strict=True):
+        for f in (drawn, np.zeros(arm.n_muscles), high):
+            if feasible(arm, theta, np.maximum(f, f_floor)):
+                poses.append(theta)
+                floors.append(f)
+    # as a poses file gives them: the floors the collection holds (≥ each f_floor)
+    floors = np.maximum(np.array(floors), f_floor)
+    return PosePlan(poses=np.array(poses), floors=floors, drawn_floors=floors, replaced=())
+
+
+def _carried_link(arm: ArmModel, k: int) -> str | None:
+    """The link joint ``k`` carries (None: the last link, the simulator's default)."""
+    if k == arm.n_joints - 1:
+        return None
+    if arm.backend.kind == "mjcf":
+        from pimbs_calibration.mjcf import joint_names
+
+        m = arm.backend.mj_model
+        body = int(m.jnt_bodyid[joint_names(m).index(arm.joints[k])])
+        return m.body(body).name
+    import pinocchio as pin
+
+    model = arm._model
+    jid = model.getJointId(arm.joints[k])
+    for frame in model.frames:
+        if frame.type == pin.FrameType.BODY and frame.parentJoint == jid:
+            return frame.name
+    return None
+
+
+ORDER = ("link_mass", "elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
+         "tension_offset", "thermal_drift")
+
+
+def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel) -> tuple[Effect, ...]:
+    """The fitted effects as the simulator conceals them (the loadcell chain in order)."""
+    out = []
+    for u, p in sorted(zip(units, params, strict=True), key=lambda x: ORDER.index(
+            x[0].effect)):
+        p = float(p)
+        muscles = () if u.part == "common" else (arm.muscles[u.index],)
+        if u.effect == "link_mass":
+            if u.part == "distal":
+                out.append(Effect("link_mass", max(1.0 + p, 1e-3),
+                                  link=_carried_link(arm, u.index)))
+        elif u.effect == "elastic_stiffness":
+            out.append(Effect("elastic_stiffness", 1.0 / max(1.0 + p, 1e-3), muscles=muscles))
+        elif u.effect == "joint_offset":
+            out.append(Effect("joint_offset", p, joints=(arm.joints[u.index],)))
+        else:
+            out.append(Effect(u.effect, p, muscles=muscles))
+    return tuple(out)
+
+
+def predict(arm: ArmModel, pool: PosePlan, fit: Fit | None, physics: Physics, noise: dict
+            ) -> Samples:
+    """What a session at the pool's poses records if ``fit``'s explanation is true (None:
+    the description itself)."""
+    n = len(pool.poses)
+    effects = () if fit is None else concealed(fit.units, fit.params, arm)
+    data, _ = simulate(arm, n, "atl", effects=effects, noise=0.0, poses=pool)
+    t = data["time"].astype("datetime64[us]").astype(np.int64) / 1e6
+    out = Samples(theta=data["theta"], tension=data["tension"], length=data["length"],
+                  temperature=data["temperature"], approach=data["approach"].astype(float),
+                  tau=data["tau_gravity"], time=t - t[0], sample=data["sample"],
+                  temp_zero=np.full((n, arm.n_muscles), T_REF))
+    out.len_weight = stretch_weights(physics.kappa, out.tension, noise["tension_N"],
+                                     noise["length_m"])
+    return out
+
+
+def _rows(physics: Physics, fit: Fit, data: Samples, params: np.ndarray | None = None
+          ) -> np.ndarray:
+    """(rows, channels) whitened residuals of ``fit`` (schema held) on ``data``."""
+    f = fit if params is None else fit.with_params(params)
+    r_len, r_tau = evaluate(physics, f, data)
+    return np.hstack([r_len / fit.sigma_len, r_tau / fit.sigma_tau])
+
+
+class _Test:
+    """How the rows picked so far would reject ``rival`` if the other explanation were true.
+
+    ``own``/``other``: the predictions of the rival and of the other explanation;
+    ``described``: the physics with the description's body schema, which produced both
+    (the real arm's learned schema would add the routing difference to every row).
+    """
+
+    def __init__(self, physics: Physics, described: Physics, schema: np.ndarray,
+                 data: Samples, rival: Fit, own: Samples, other: Samples):
+        model = replace(rival, weights=schema)
+        base = _rows(described, model, other)
+        self.e = base - _rows(described, model, own)  # (R, C)
+        cols = []
+        for i, u in enumerate(rival.units):
+            p = rival.params.copy()
+            p[i] += FD_STEP[u.effect]
+            cols.append((_rows(described, model, other, p) - base) / FD_STEP[u.effect])
+        self.j = np.stack(cols, axis=2) if cols else np.zeros((*self.e.shape, 0))  # (R, C, P)
+        sigma = (rival.sigma_len, rival.sigma_tau)
+        r0 = _whitened(physics, data, rival.units, rival.params, sigma)
+        old = np.stack([fd_column(physics, data, rival, u, r0, sigma) for u in rival.units],
+                       1) if rival.units else np.zeros((len(r0), 0))
+        self.info = old.T @ old
+        self.ee = np.einsum("rc,rc->r", self.e, self.e)
+        self.je = np.einsum("rcp,rc->rp", self.j, self.e)
+        self.jj = np.einsum("rcp,rcq->rpq", self.j, self.j)
+
+    def gain(self, chosen: list[int]) -> np.ndarray:
+        """Δ for ``chosen`` plus each candidate row (R,)."""
+        s_ee = self.ee[chosen].sum() if chosen else 0.0
+        s_je = self.je[chosen].sum(0) if chosen else np.zeros(self.je.shape[1])
+        s_jj = self.info + (self.jj[chosen].sum(0) if chosen else 0.0)
+        b = s_je[None, :] + self.je
+        a = s_jj[None, :, :] + self.jj
+        ridge = 1e-9 * np.maximum(np.trace(a, axis1=1, axis2=2), 1e-300)[:, None, None]
+        a = a + ridge * np.eye(a.shape[1])[None]
+        quad = np.einsum("rp,rp->r", b, np.linalg.solve(a, b[:, :, None])[:, :, 0]) \
+            if a.shape[1] else 0.0
+        return s_ee + self.ee - quad
+
+
+def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
+                     k: int, noise: dict | None = None) -> dict:
+    """The ``k`` poses (and floors) that best tell the named effect from its rivals."""
+    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    pool = candidate_pool(arm)
+    models = [verdict.fit, *(r.fit for r in verdict.rivals)]
+    preds = [predict(arm, pool, m, physics, noise) for m in models]
+    described = replace(physics, tied=None, _cache={})
+    clean = predict(arm, pool, None, physics, noise)
+    schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
+    tests = []
+    for b in range(1, len(models)):  # the named against each rival, either way true
+        for rival, truth in ((b, 0), (0, b)):
+            tests.append(_Test(physics, described, schema, data, models[rival], preds[rival],
+                               preds[truth]))
+    chosen: list[int] = []
+    score = 0.0
+    for _ in range(min(k, len(pool.poses))):
+        worst = np.min([t.gain(chosen) for t in tests], axis=0)
+        worst[chosen] = -np.inf
+        best = int(np.argmax(worst))
+        chosen.append(best)
+        score = float(worst[best])
+    floors = pool.floors[chosen]
+    names = [verdict.named.effect, *(r.effect for r in verdict.rivals)]
+    return {"between": names, "poses": pool.poses[chosen].tolist(),
+            "floors_N": floors.tolist(), "expected_likelihood_ratio": score,
+            "meaning": "poses (rad, joint order) and tension floors (N, muscle order) whose "
+                       "predicted readings differ most between the explanations, beyond what "
+                       "each one's parameters can follow; the expected likelihood ratio is "
+                       "that of the true one against the best other after collecting them",
+            "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
+
+
+def design_csv(result: dict) -> tuple[str, int]:
+    """One poses file for every ambiguity of a diagnosis (one session settles them all),
+    and how many poses it holds."""
+    rows = [a["separating_poses"]["csv"].splitlines() for a in result.get("ambiguous", [])
+            if a.get("separating_poses")]
+    if not rows:
+        return "", 0
+    body = [r for part in rows for r in part[1:]]
+    return "\n".join([rows[0][0], *body]) + "\n", len(body)

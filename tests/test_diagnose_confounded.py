@@ -1,0 +1,197 @@
+"""A diagnosis that knows what it does not know: confounded effects, and the poses that settle them.
+
+MyoSuite's one-joint elbow (`fixtures/myosuite/elbow`, six muscles) with a loadcell offset
+on one triceps head: on one joint the offset's torque `G_j(θ)·b` and a heavier or lighter
+forearm's `β·τ(θ)` are two smooth functions of one angle. With another routing (the real
+arm never matches its model) the recording cannot tell them apart, and the diagnosis must
+say so instead of naming one. A user who collected around one posture with light tensions
+cannot tell an offset from a gain; the poses the diagnosis proposes, collected (simulated),
+settle it. A motor whose temperature follows its load within a sample makes a drift and a
+gain the same function of the reading: neither is named alone.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pimbs_arm.geometry_table import PoseFileError
+from pimbs_arm.model import ArmModel
+from pimbs_arm.poses_file import floor_column, pose_plan_csv, read_pose_plan
+from pimbs_cli.main import main
+from pimbs_learn.diagnosis.run import diagnose
+from pimbs_recording.format import read_recording, write_recording
+from pimbs_sim.effects import parse_effect
+from pimbs_sim.simulate import SensorModel, ThermalModel, simulate
+
+ELBOW = str(Path(__file__).resolve().parents[1] / "fixtures/myosuite/elbow/"
+            "myoelbow_1dof6muscles.xml")
+OFFSET = "tension_offset:20,muscles=TRIlong_tendon"
+
+
+@pytest.fixture(scope="module")
+def elbow() -> ArmModel:
+    return ArmModel.load(ELBOW)
+
+
+def _pair(tmp_path, arm, n, specs, seed=3, poses=None, thermal=None, tag=""):
+    """A clean reference and a "real" recording of the same poses, each its own noise."""
+    paths = []
+    for name, hidden in (("sim", ()), ("real", specs)):
+        data, meta = simulate(arm, n, "atl", seed=seed, noise_seed=seed + (name == "real") * 1000,
+                              effects=tuple(parse_effect(e, seed=seed) for e in hidden),
+                              poses=poses,
+                              sensors=None if thermal is None else SensorModel(thermal=thermal))
+        paths.append(tmp_path / f"{name}{tag}.parquet")
+        write_recording(paths[-1], data, meta)
+    return paths[1], paths[0]
+
+
+def _explanations(result: dict) -> list[set[str]]:
+    return [{o["name"] for o in a["either"]} for a in result["ambiguous"]]
+
+
+def test_elbow_offset_with_another_routing_is_either_offset_or_mass(tmp_path, elbow):
+    """Alone, the lighter forearm fits best (ΔBIC 18 ahead) and used to be named with
+    p 1e-57; what it adds beside the offset is not confirmed on held-out rows. The poses
+    proposed to separate them do not settle it on this arm — its learned body schema leaves
+    half the torque mismatch whatever the explanation — and the two recordings then
+    disagree: still no name, never the wrong one."""
+    real, ref = _pair(tmp_path, elbow, 200, [OFFSET, "routing:0.002"])
+    result, _ = diagnose(real, ref, robot=ELBOW)
+    named = {e["name"] for e in result["effects"]}
+    assert not named & {"tension_offset", "link_mass"}, result["effects"]
+    assert any({"tension_offset", "link_mass"} <= s for s in _explanations(result)) or \
+        result["unexplained"], (result["ambiguous"], result["unexplained"])
+    either = next(a["either"] for a in result["ambiguous"]
+                  if {"tension_offset", "link_mass"} <= {o["name"] for o in a["either"]})
+    offset = next(o for o in either if o["name"] == "tension_offset")
+    assert offset["muscles"] == ["TRIlong_tendon"]
+    (value,) = offset["parameters"].values()
+    assert value["offset_N"] > 0 and value["se"] > 0  # a fit with its uncertainty
+    assert all(o["delta_bic"] > 0 for o in either)    # each explains the mismatch alone
+    design = tmp_path / "design.csv"
+    design.write_text(next(a["separating_poses"]["csv"] for a in result["ambiguous"]))
+    real2, ref2 = _pair(tmp_path, elbow, 30, [OFFSET, "routing:0.002,seed=3"], seed=4,
+                        poses=read_pose_plan(design, elbow), tag="2")
+    both, _ = diagnose([real, real2], [ref, ref2])
+    assert not {e["name"] for e in both["effects"]} & {"tension_offset", "link_mass"}, \
+        both["effects"]
+    assert both["ambiguous"] or both["unexplained"]
+
+
+def test_clean_elbow_names_nothing_and_is_sure_of_it(tmp_path, elbow):
+    real, ref = _pair(tmp_path, elbow, 150, [])
+    result, _ = diagnose(real, ref)
+    assert result["effects"] == [] and result["ambiguous"] == [], result["ambiguous"]
+
+
+def test_proposed_poses_collected_settle_what_the_first_session_could_not(tmp_path, elbow):
+    """First session: 120 poses around one posture (0.9–1.4 rad), every muscle at its
+    floor. An offset of 20 N on the long triceps reads like a gain there (a constant
+    tension ×3 is +20 N): "either". The proposed poses, simulated with the same arm, and
+    both recordings diagnosed together name the offset alone, at 20 N."""
+    rng = np.random.default_rng(5)
+    first = tmp_path / "first.csv"
+    first.write_text(pose_plan_csv(elbow, rng.uniform(0.9, 1.4, (120, 1)),
+                                   np.full((120, elbow.n_muscles), 10.0)))
+    plan = read_pose_plan(first, elbow)
+    real1, ref1 = _pair(tmp_path, elbow, 120, [OFFSET], seed=5, poses=plan, tag="1")
+    design = tmp_path / "design.csv"
+    runner = CliRunner()
+    r = runner.invoke(main, ["diagnose", str(real1), "--reference", str(ref1), "--robot",
+                             ELBOW, "--poses-out", str(design), "--corrected",
+                             str(tmp_path / "fixed.parquet"), "--json",
+                             str(tmp_path / "d1.json")])
+    assert r.exit_code == 0, r.output
+    d1 = json.loads((tmp_path / "d1.json").read_text())
+    assert "tension_offset" not in {e["name"] for e in d1["effects"]}
+    assert any("tension_offset" in s and len(s) > 1 for s in _explanations(d1)), d1["ambiguous"]
+    assert "Cannot tell apart" in r.output and "either" in r.output
+    # --corrected undoes no explanation it cannot tell from another
+    assert read_recording(tmp_path / "fixed.parquet").meta["corrections"] == []
+    header = design.read_text().splitlines()[0].split(",")
+    assert header == ["r_elbow_flex", *map(floor_column, elbow.muscles)]
+    for name, hidden in (("sim2", []), ("real2", [OFFSET])):
+        args = ["simulate", "--robot", ELBOW, "--poses-file", str(design), "--seed", "6",
+                "--out", str(tmp_path / f"{name}.parquet")]
+        r = runner.invoke(main, args + [a for spec in hidden for a in ("--conceal", spec)])
+        assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["diagnose", str(real1), str(tmp_path / "real2.parquet"),
+                             "--reference", str(ref1), "--reference",
+                             str(tmp_path / "sim2.parquet"), "--json",
+                             str(tmp_path / "d2.json")])
+    assert r.exit_code == 0, r.output
+    d2 = json.loads((tmp_path / "d2.json").read_text())
+    assert [e["name"] for e in d2["effects"]] == ["tension_offset"], (d2["effects"],
+                                                                      d2["ambiguous"])
+    assert d2["ambiguous"] == []
+    assert d2["effects"][0]["parameters"]["TRIlong_tendon"]["offset_N"] == pytest.approx(
+        20.0, abs=1.0)
+    assert len(d2["recordings"]) == 2 and "(together)" in r.output
+
+
+@pytest.mark.parametrize("spec", ["thermal_drift:0.6,muscles=m0", "tension_gain:0.1,muscles=m0"])
+def test_temperature_that_follows_the_load_names_neither_drift_nor_gain(tmp_path, spec):
+    """Motors that reach their temperature within a sample (time constant 0.3 s against
+    4 s per sample): the drift reads c·(T − T0) = c·k·f, a gain error. Neither is named
+    alone; with the default lag (240 s) each is (`tests/test_diagnose.py`)."""
+    arm = ArmModel.load("two-link-4-muscle")
+    real, ref = _pair(tmp_path, arm, 200, [spec], seed=11,
+                      thermal=ThermalModel(time_constant=0.3))
+    result, _ = diagnose(real, ref)
+    named = {e["name"] for e in result["effects"]}
+    assert not named & {"thermal_drift", "tension_gain"}, result["effects"]
+    assert {"thermal_drift", "tension_gain"} in _explanations(result), result["ambiguous"]
+
+
+def test_poses_file_that_does_not_fit_the_robot_is_refused_in_one_line(tmp_path, elbow):
+    bad = tmp_path / "p.csv"
+    for text, words in (("elbow\n0.5\n", "no column for joint"),
+                        ("r_elbow_flex,floor_BRA\n0.5,20\n", "'floor_BRA' names no"),
+                        ("r_elbow_flex\n3.0\n", "outside its range"),
+                        ("r_elbow_flex,floor_BRA_tendon\n0.5,20\n", "for none"),
+                        ("r_elbow_flex\nabc\n", "not a finite number")):
+        bad.write_text(text)
+        with pytest.raises(PoseFileError, match=words) as err:
+            read_pose_plan(bad, elbow)
+        assert "\n" not in str(err.value) and str(bad) in str(err.value)
+    bad.write_text("r_elbow_flex\n0.5\n")
+    r = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot", ELBOW,
+                                  "--poses-file", str(bad), "--samples", "5", "--out",
+                                  str(tmp_path / "c.parquet")])
+    assert r.exit_code != 0 and "holds 1 poses" in r.output
+    assert not (tmp_path / "c.parquet").exists()
+
+
+def test_several_recordings_pair_each_with_its_own_reference():
+    from pimbs_learn.diagnosis.inputs import DiagnosisInputError
+
+    fixtures = Path(__file__).resolve().parents[1] / "fixtures"
+    real, sim = fixtures / "two_link_offset.parquet", fixtures / "two_link_sim.parquet"
+    with pytest.raises(DiagnosisInputError, match="one --reference per recording"):
+        diagnose([real, real], [sim])
+    r = CliRunner().invoke(main, ["diagnose", str(real), str(real), "--reference", str(sim),
+                                  "--reference", str(sim), "--corrected", "x.parquet"])
+    assert r.exit_code != 0 and "--corrected writes one recording" in r.output
+
+
+def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow):
+    """What the pose designer simulates for each explanation: the diagnosis' units turned
+    into the simulator's effects (stiffness as K_true/K_model, a mass as its scale)."""
+    from pimbs_learn.diagnosis.design import concealed
+    from pimbs_learn.diagnosis.model import Unit
+
+    units = [Unit("tension_offset", 0), Unit("elastic_stiffness", 5),
+             Unit("link_mass", 0, "distal"), Unit("thermal_drift", -1, "common")]
+    effects = {e.name: e for e in concealed(units, np.array([20.0, 0.25, -0.2, 0.5]), elbow)}
+    assert effects["tension_offset"].muscles == ("TRIlong_tendon",)
+    assert effects["tension_offset"].magnitude == pytest.approx(20.0)
+    assert effects["elastic_stiffness"].magnitude == pytest.approx(0.8)
+    assert effects["link_mass"].magnitude == pytest.approx(0.8)
+    assert effects["thermal_drift"].muscles == ()  # every loadcell
+    assert list(effects)[0] == "link_mass"  # the arm's physics before the loadcell chain
