@@ -23,7 +23,7 @@ go through ``benchmarks/population_runner.py`` (stacked by arm shape, resumable)
 * the default no worse than the paper's Basic on ≥ 90 % of arms.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/learning_judge.py --population population \\
-        --size cpu --jobs 2 --out population/judge      [--readme]
+        --size cpu --jobs 2 --out population/judge
 """
 
 from __future__ import annotations
