@@ -48,8 +48,7 @@ SIMULATED_LIMITS = SafetyLimits(watchdog_s=1.0, silent_after_s=1.0)
 # A send waits for the other end to take the frame (a full USB-serial or SLCAN buffer). An
 # adapter or pty served by simulated boards in this process drains only when this process's
 # threads get the CPU and the GIL, which on a loaded machine can take longer than the 0.5 s
-# that means a lost link on real hardware (python-can's slcan reads one byte per call, so the
-# emulated adapter alone needs a good share of a core at full bus load).
+# that means a lost link on real hardware.
 SIMULATED_SEND_TIMEOUT_S = 3.0
 
 
