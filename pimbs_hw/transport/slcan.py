@@ -1,11 +1,12 @@
 """python-can's ``slcan`` interface, reading what the adapter sent in one call, not per byte.
 
 python-can's ``slcanBus._read`` (4.6) takes every byte in its own ``serial.read(1)``: a
-Python call, a ``select`` and a ``read`` system call for each of the ~25 bytes of a frame's
-line (``t1238DDDDDDDDDDDDDDDD`` CR). A 1 Mbit/s bus of several boards sends about a thousand
-frames a second (four ODrive axes: ~960), which that alone turns into ~25 000 system calls a
-second and a good part of a CPU core on the host, before any frame is used. When the host
-cannot keep up, the adapter's buffer fills and the frames it drops look like a lossy bus.
+Python call, a ``select`` and a ``read`` system call for each of the 22 bytes of an 8-byte
+frame's line (``t1238DDDDDDDDDDDDDDDD`` CR). A 1 Mbit/s bus of several boards sends about a
+thousand frames a second (four ODrive axes as the ``odrive-cansimple`` profile has them
+configured: 880), which that alone turns into some 40 000 system calls a second and a good
+part of a CPU core on the host, before any frame is used. When the host cannot keep up, the
+adapter's buffer fills and the frames it drops look like a lossy bus.
 
 ``SlcanBus`` changes only how the bytes come off the serial port: everything waiting in one
 ``read``, split on the SLCAN terminators (CR ends a frame or an OK, BEL an error), and, on a
