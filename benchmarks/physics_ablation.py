@@ -29,11 +29,10 @@ sys.path.insert(0, str(ROOT))
 
 from pimbs_learn.data import load_samples, split  # noqa: E402
 from pimbs_learn.losses import REPORT_SCALE, LossConfig  # noqa: E402
+from pimbs_learn.method_spec import parse_method  # noqa: E402
 from pimbs_learn.paired import paired_change  # noqa: E402
 from pimbs_learn.run import Run, TrainOptions  # noqa: E402
 from pimbs_learn.train import train_runs  # noqa: E402
-
-STRUCT = {"mlp": "mlp", "se": "series-elastic"}
 
 
 def recording(arm: str, data_dir: Path) -> Path:
@@ -68,14 +67,8 @@ def recording(arm: str, data_dir: Path) -> Path:
 def method(spec: str) -> tuple[str, LossConfig, str]:
     """'se:basic+const+pinn@auto~exp' / 'mlp:basic+pinn@1e-5' -> (structure, loss, lr
     schedule); without '~' the schedule is constant (the paper's Adam)."""
-    spec, _, schedule = spec.partition("~")
-    s, _, rest = spec.partition(":")
-    loss, _, w = rest.partition("@")
-    if w.startswith("auto"):
-        config = LossConfig.parse(loss, float(w[4:].lstrip("x") or 1.0), "auto")
-    else:
-        config = LossConfig.parse(loss, float(w or 1e-5))
-    return STRUCT[s], config, schedule or "constant"
+    m = parse_method(spec)
+    return m.structure, m.loss, m.schedule
 
 
 def main() -> None:

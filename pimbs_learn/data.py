@@ -134,8 +134,11 @@ def check_compatible(train: Samples, other: Samples) -> None:
             f"{list(other.muscles)} vs {list(train.muscles)}")
 
 
-def split(samples: Samples, n_train: int, seed: int) -> tuple[Samples, Samples]:
-    """Draw n_train samples (seeded, without replacement); the rest is the evaluation set."""
+def split(samples: Samples, n_train: int, seed: int, max_eval: int | None = None
+          ) -> tuple[Samples, Samples]:
+    """Draw n_train samples (seeded, without replacement); the rest is the evaluation set,
+    or its first ``max_eval`` rows in the draw's order (to bound the cost of evaluating; the
+    training rows are the same either way)."""
     s = samples.n_samples
     if n_train < 1:
         raise LearnError(f"--n-train must be ≥ 1, got {n_train}")
@@ -143,4 +146,5 @@ def split(samples: Samples, n_train: int, seed: int) -> tuple[Samples, Samples]:
         raise LearnError(f"--n-train {n_train} leaves no evaluation samples: the recording has "
                          f"{s} rows; use fewer, or give a separate --eval recording")
     perm = np.random.default_rng(seed).permutation(s)
-    return samples.take(np.sort(perm[:n_train])), samples.take(np.sort(perm[n_train:]))
+    rest = perm[n_train:] if max_eval is None else perm[n_train:n_train + max_eval]
+    return samples.take(np.sort(perm[:n_train])), samples.take(np.sort(rest))

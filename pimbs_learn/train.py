@@ -65,31 +65,46 @@ def _stack(arrays: list[np.ndarray], dtype: torch.dtype, dev: torch.device) -> t
 
 
 def _check_stackable(runs: list[Run]) -> None:
+    """Runs train together when their tensors stack: the same numbers of training samples,
+    joints and muscles, the same map and structure. Names do not matter (arms of one shape
+    stack, whatever their joints are called), nor do evaluation sizes (padded and masked)."""
     if not runs:
         raise LearnError("no runs to train")
     first = runs[0]
+
+    def shape(r: Run) -> tuple:
+        return (r.train.n_samples, r.atl, len(r.train.joints), len(r.train.muscles),
+                r.structure)
+
     for r in runs:
         r.check()
-        if (r.train.n_samples, r.eval.n_samples, r.atl, r.train.joints, r.train.muscles,
-                r.structure) != (
-                first.train.n_samples, first.eval.n_samples, first.atl, first.train.joints,
-                first.train.muscles, first.structure):
-            raise LearnError("runs trained together need the same n_train, n_eval, map, "
-                             "structure, joints and muscles; train the others in a separate "
+        if shape(r) != shape(first):
+            raise LearnError("runs trained together need the same n_train, map, structure and "
+                             "numbers of joints and muscles; train the others in a separate "
                              "batch")
 
 
+def _padded(arrays: list[np.ndarray]) -> np.ndarray:
+    """Stack row arrays of different lengths, zero-padded to the longest."""
+    rows = max(len(a) for a in arrays)
+    out = np.zeros((len(arrays), rows) + arrays[0].shape[1:], dtype=np.float64)
+    for i, a in enumerate(arrays):
+        out[i, :len(a)] = a
+    return out
+
+
 def _eval_loss(p: Params, x: torch.Tensor, phi: torch.Tensor | None, l_data: torch.Tensor,
-               ls: torch.Tensor) -> torch.Tensor:
-    """L_eval per run, evaluated in row chunks (the sum of chunk SSEs / rows · muscles)."""
+               ls: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """L_eval per run, evaluated in row chunks: the sum of chunk SSEs over each run's own
+    rows (``mask`` (R, S, 1): 1 on a run's rows, 0 on the padding) / (rows · muscles)."""
     sse = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for i in range(0, x.shape[1], _EVAL_CHUNK):
         _, a2 = hidden_layers(p, x[:, i:i + _EVAL_CHUNK])
         ph = None if phi is None else phi[:, i:i + _EVAL_CHUNK]
         d = (output_length(p, a2, ls) + elastic_length(p, ph, ls)
-             - l_data[:, i:i + _EVAL_CHUNK])
+             - l_data[:, i:i + _EVAL_CHUNK]) * mask[:, i:i + _EVAL_CHUNK]
         sse += (d * d).sum(dim=(-2, -1))
-    return sse / (l_data.shape[1] * l_data.shape[2])
+    return sse / (mask.sum(dim=(-2, -1)) * l_data.shape[2])
 
 
 def _keep_best(p: Params, best_p: Params, improved: torch.Tensor, on_host: bool) -> None:
@@ -134,12 +149,12 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         for r in runs:
             s = getattr(r, samples_of)
             xs.append(np.hstack([s.theta, s.tension]) if with_f else s.theta)
-        return _stack(xs, dt, dev) * inv
+        return as_tensor(_padded(xs), dt, dev) * inv
 
     def basis(samples_of: str) -> torch.Tensor | None:
         if not elastic:
             return None
-        f = _stack([getattr(r, samples_of).tension for r in runs], dt, dev)
+        f = as_tensor(_padded([getattr(r, samples_of).tension for r in runs]), dt, dev)
         fs = _stack([s.tension[None] for s in scalings], dt, dev)  # type: ignore[index]
         return elastic_basis(f, fs)
 
@@ -163,7 +178,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev))
     x_ev = inputs("eval")
     phi_ev = basis("eval")
-    l_ev = _stack([r.eval.length for r in runs], dt, dev)
+    l_ev = as_tensor(_padded([r.eval.length for r in runs]), dt, dev)
+    mask_ev = as_tensor(_padded([np.ones((r.eval.n_samples, 1)) for r in runs]), dt, dev)
 
     m = batch.length.shape[-1]
     inits = [init_params(x_tr.shape[-1], m, r.seed, options.hidden, dt) for r in runs]
@@ -194,7 +210,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             _keep_best(p, best_p, improved, on_host)
             if options.curve_every and epoch % options.curve_every == 0:
                 curve_e.append(epoch)
-                curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls))
+                curve_v.append(_eval_loss(p, x_ev, phi_ev, l_ev, ls, mask_ev))
                 curve_t.append(lb)
         opt.step([grads[k] for k in p], options.lr_at(epoch))
         if progress is not None and ((epoch + 1) % progress_every == 0
@@ -202,7 +218,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             progress(epoch + 1)
 
     with torch.no_grad():
-        ev = _eval_loss(best_p, x_ev, phi_ev, l_ev, ls).cpu().numpy()
+        ev = _eval_loss(best_p, x_ev, phi_ev, l_ev, ls, mask_ev).cpu().numpy()
         curve = torch.stack(curve_v).cpu().numpy() if curve_v else np.zeros((0, r_n))
         curve_tr = torch.stack(curve_t).cpu().numpy() if curve_t else np.zeros((0, r_n))
     seconds = time.perf_counter() - t0

@@ -9,7 +9,9 @@ the elastic stretch ``f = exp(KΔn) − 1``.
 
 Like a real collection, the recording also carries times, approach directions (the sign
 of each muscle's length change on the way from the previous pose), motor temperatures that
-rise with load (first-order thermal model) and sensor noise. With effects from
+rise with load (first-order thermal model) and sensor noise; a ``SensorModel``
+(:mod:`pimbs_sim.sensors`) adds loadcell and encoder latency and loadcell hysteresis, and sets
+the heating. With effects from
 :mod:`pimbs_sim.effects` the data obey the *true* arm while ``tau_gravity`` is still
 computed from the model, exactly as on hardware. Poses, f_min draws and noise come from
 separate seeded streams, so a concealed and a clean recording of one seed pair by
@@ -19,7 +21,6 @@ separate seeded streams, so a concealed and a clean recording of one seed pair b
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,36 +28,11 @@ from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_arm.poses import ATL_F_MIN, PosePlan, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_recording.format import make_meta
 from pimbs_sim.effects import T_REF, Effect, World
+from pimbs_sim.sensors import SensorModel, SensorNoise, SensorReadout, ThermalModel
 
-__all__ = ["ATL_F_MIN", "simulate", "SensorNoise", "ThermalModel", "approach_direction"]
+__all__ = ["ATL_F_MIN", "simulate", "SensorModel", "SensorNoise", "ThermalModel",
+           "approach_direction"]
 START = np.datetime64("2026-01-01T09:00:00", "us")  # fixed, so files of one seed are equal
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    """Standard deviations of the simulated sensors (scaled together by ``scale``)."""
-
-    tension: float = 0.3       # N, loadcell
-    length: float = 5e-6       # m, motor encoder
-    theta: float = 2e-4        # rad, joint angle estimate
-    temperature: float = 0.1   # °C
-
-    def scaled(self, scale: float) -> SensorNoise:
-        return SensorNoise(self.tension * scale, self.length * scale, self.theta * scale,
-                           self.temperature * scale)
-
-
-@dataclass(frozen=True)
-class ThermalModel:
-    """Motor temperature: first order towards ambient + gain·tension."""
-
-    ambient: float = 25.0         # °C
-    gain: float = 0.06            # °C per N held
-    time_constant: float = 240.0  # s
-
-    def step(self, temp: np.ndarray, tension: np.ndarray, dt: float) -> np.ndarray:
-        a = np.exp(-dt / self.time_constant)
-        return self.ambient + (temp - self.ambient) * a + (1 - a) * self.gain * tension
 
 
 def approach_direction(previous: np.ndarray, current: np.ndarray,
@@ -71,7 +47,7 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
              sample_period: float = 4.0, noise_seed: int | None = None,
              start: np.datetime64 = START,
              progress: Callable[[int], None] | None = None,
-             poses: PosePlan | None = None, thermal: ThermalModel | None = None,
+             poses: PosePlan | None = None, sensors: SensorModel | None = None,
              ) -> tuple[dict[str, np.ndarray], dict]:
     """Simulate ``n_samples`` static samples; returns (columns, metadata) for the recording.
 
@@ -79,15 +55,20 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
     "real" and a reference recording of the same poses need not share their noise.
     ``progress(done)`` is called every 100 samples and at the end (a 5-DOF arm takes
     about 0.4 ms per sample: 100 000 samples run for most of a minute). ``poses``: a plan
-    to simulate instead of the seeded draws (``pimbs_arm.poses_file``); ``thermal``: how the
-    motors heat with load (how closely temperature follows it, for the diagnosis' tests).
+    to simulate instead of the seeded draws (``pimbs_arm.poses_file``).
+    ``sensors`` says how the boards read the arm (:mod:`pimbs_sim.sensors`: noise, motor
+    heating — how closely temperature follows load —, latency, hysteresis); the default
+    ``SensorModel()`` is the plain sensor of ``pimbs simulate``, whose recordings it leaves
+    unchanged.
     """
     if map_kind not in ("al", "atl"):
         raise ValueError(f"map must be 'al' or 'atl', not {map_kind!r}")
     noise_rng = np.random.default_rng([seed if noise_seed is None else noise_seed, 2])
     world = World(arm, tuple(effects))
-    sigma = SensorNoise().scaled(noise)
-    thermal = thermal or ThermalModel()
+    sensors = SensorModel() if sensors is None else sensors
+    sigma = sensors.noise.scaled(noise)
+    thermal = sensors.thermal
+    readout = SensorReadout(sensors, arm.n_muscles)
 
     plan = plan_poses(arm, n_samples, seed, map_kind) if poses is None else poses
     theta_cmd = plan.poses
@@ -107,11 +88,12 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
         prev_length = length
         temp = thermal.step(temp, tension, sample_period)
         temperature = temp + noise_rng.normal(0, sigma.temperature, m)
-        reading = world.read_tension(tension, approach[i], temperature)
+        reading, logged_length = readout.read(
+            tension, world.read_tension(tension, approach[i], temperature), length)
         theta_meas = theta_cmd[i] + noise_rng.normal(0, sigma.theta, n)
         out["theta"][i] = theta_meas
         out["tension"][i] = reading + noise_rng.normal(0, sigma.tension, m)
-        out["length"][i] = length + noise_rng.normal(0, sigma.length, m)
+        out["length"][i] = logged_length + noise_rng.normal(0, sigma.length, m)
         out["temperature"][i] = temperature
         out["tau_gravity"][i] = arm.gravity_torque(theta_meas)
         if progress is not None and ((i + 1) % 100 == 0 or i + 1 == n_samples):

@@ -26,7 +26,7 @@ from pimbs_cli.main import main
 from pimbs_learn.diagnosis.run import diagnose
 from pimbs_recording.format import read_recording, write_recording
 from pimbs_sim.effects import parse_effect
-from pimbs_sim.simulate import ThermalModel, simulate
+from pimbs_sim.simulate import SensorModel, ThermalModel, simulate
 
 ELBOW = str(Path(__file__).resolve().parents[1] / "fixtures/myosuite/elbow/"
             "myoelbow_1dof6muscles.xml")
@@ -44,7 +44,8 @@ def _pair(tmp_path, arm, n, specs, seed=3, poses=None, thermal=None, tag=""):
     for name, hidden in (("sim", ()), ("real", specs)):
         data, meta = simulate(arm, n, "atl", seed=seed, noise_seed=seed + (name == "real") * 1000,
                               effects=tuple(parse_effect(e, seed=seed) for e in hidden),
-                              poses=poses, thermal=thermal)
+                              poses=poses,
+                              sensors=None if thermal is None else SensorModel(thermal=thermal))
         paths.append(tmp_path / f"{name}{tag}.parquet")
         write_recording(paths[-1], data, meta)
     return paths[1], paths[0]

@@ -1,0 +1,49 @@
+"""A training method written as one word, for research drivers that compare many of them.
+
+``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE]``: the structure (``mlp``, the paper's network, or
+``se``, series-elastic), the loss terms (``basic``, ``basic+const``, ``basic+pinn``,
+``basic+const+pinn``), the physics weight (a number, α of the paper, default 1e-5; or
+``auto``, optionally ``autoX``/``autoxX`` to scale the automatic weight by X) and the
+learning-rate schedule (default ``constant``, the paper's Adam). Examples:
+``se:basic+const+pinn@auto~exp`` (the default of ``pimbs train`` without a prior),
+``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pimbs_learn.graph import MLP, SERIES_ELASTIC
+from pimbs_learn.losses import LossConfig
+from pimbs_learn.run import SCHEDULES
+
+STRUCTURE_NAMES = {"mlp": MLP, "se": SERIES_ELASTIC}
+
+
+@dataclass(frozen=True)
+class Method:
+    """A parsed method: its text, network structure, loss and learning-rate schedule."""
+
+    spec: str
+    structure: str
+    loss: LossConfig
+    schedule: str
+
+
+def parse_method(spec: str) -> Method:
+    """Parse ``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE]``; ``ValueError`` naming what is wrong."""
+    body, _, schedule = spec.partition("~")
+    short, _, rest = body.partition(":")
+    loss, _, weight = rest.partition("@")
+    if short not in STRUCTURE_NAMES:
+        raise ValueError(f"method '{spec}': structure '{short}' is not one of "
+                         f"{', '.join(STRUCTURE_NAMES)}")
+    schedule = schedule or "constant"
+    if schedule not in SCHEDULES:
+        raise ValueError(f"method '{spec}': schedule '{schedule}' is not one of "
+                         f"{', '.join(SCHEDULES)}")
+    if weight.startswith("auto"):
+        config = LossConfig.parse(loss, float(weight[4:].lstrip("x") or 1.0), "auto")
+    else:
+        config = LossConfig.parse(loss, float(weight or 1e-5))
+    return Method(spec, STRUCTURE_NAMES[short], config, schedule)
