@@ -42,6 +42,7 @@ CAN_ERR_PROT = 0x08  # SocketCAN error class: protocol violation (a frame failed
 log = logging.getLogger(__name__)
 OVERHEAT_RATE_C_PER_S = 400.0  # injected thermal runaway: past any limit within 0.15 s
 DROP_KEEP_EVERY = 4  # drop-frames: 3 of every 4 status frames lost (75 %, never a long gap)
+DRAIN_S = 0.05  # the longest the board loop acts on received frames before its next tick
 _ANGLE_MIN, _ANGLE_MAX = signal_range(JointStatus, "angle_rad")
 
 
@@ -253,12 +254,16 @@ class MockArm:
         while not self._stop.is_set():
             try:
                 frame = self.transport.recv(max(0.0, next_tick - time.monotonic()))
+                # every frame that arrived before the tick runs is acted on first (a board's
+                # watchdog must see the command that reached it in time, also when this loop
+                # runs late behind a long tick), but a steady stream (CANopen SYNC at 1 kHz)
+                # must not hold the tick off: frames newer than this moment wait for it, and
+                # a backlog of them (after a stall) is taken at most DRAIN_S at a time
+                cutoff = max(next_tick, time.monotonic())
+                give_up = time.monotonic() + DRAIN_S
                 while frame is not None:
                     self._on_frame(frame)
-                    # every frame that arrived before the tick was due is acted on first (a
-                    # board's watchdog must see the command that reached it in time), but a
-                    # steady stream (CANopen SYNC at 1 kHz) must not hold the tick off
-                    if frame.timestamp >= next_tick:
+                    if frame.timestamp >= cutoff or time.monotonic() > give_up:
                         break
                     frame = self.transport.recv(0.0)
             except HardwareError as exc:  # a broken link is the host's problem to report
