@@ -137,7 +137,10 @@ def test_collection_frames_are_odrives_and_commands_wait_for_closed_loop(bus):
 
 def test_watchdog_trip_reports_idle_then_rearms_and_confirms(bus):
     port, sniff = bus
-    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+    # a host watchdog no longer than ODrive's own: the simulated axes keep their 0.6 s
+    limits = dataclasses.replace(LIMITS, watchdog_s=0.6)
+    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=limits) as (driver, mock):
+        assert [b.watchdog_s for b in mock.boards] == [0.6] * 4
         driver.command("tension", 30.0)
         driver.dwell(0.2)
         time.sleep(1.2)  # a hung host: ODrive's watchdog (0.6 s) disarms every axis

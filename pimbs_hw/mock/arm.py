@@ -92,7 +92,7 @@ class MockArm:
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
                  encoder_offset_m=None, winding=None,
-                 plant: Path | str | None = None) -> None:
+                 plant: Path | str | None = None, watchdog_floor_s: float = 0.0) -> None:
         from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
@@ -108,6 +108,10 @@ class MockArm:
         self.rng = np.random.default_rng(seed)
         self.noise = noise
         self.tick_s, self.status_period_s = tick_s, status_period_s
+        # the shortest watchdog time of a board that keeps its own (a profile's, set in its
+        # firmware): ``open_arm`` gives boards simulated beside the host the host's own
+        # watchdog time as for every board it configures (see ``pimbs_hw.connect``)
+        self.watchdog_floor_s = watchdog_floor_s
         m = len(self.muscles)
         ambient = 25.0 + (self.rng.normal(0, 0.5, m) if noise else 0.0)
         if plant is None:
@@ -179,13 +183,15 @@ class MockArm:
         from pimbs_hw.protocol.profile import load_profile
 
         profile = load_profile(profile_path(name))
+        watchdog = None if profile.watchdog is None else (
+            max(profile.watchdog[0], self.watchdog_floor_s), profile.watchdog[1])
         if profile.name == "odrive-cansimple":  # the device itself, from ODrive's documentation
             tension = profile.status["tension"]
             return ODriveAxis(spec, now, turns_per_m=profile.status["position"].per_si,
                               nm_per_n=tension.per_si, winding=winding,
-                              watchdog_s=profile.watchdog[0] if profile.watchdog else None,
+                              watchdog_s=watchdog[0] if watchdog else None,
                               torque_limit_nm=tension.rail[1] if tension.rail else 5.0)
-        return ProfileBoard(spec, profile, now, winding)
+        return ProfileBoard(spec, profile, now, winding, watchdog)
 
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
