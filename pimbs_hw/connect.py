@@ -45,11 +45,17 @@ CONNECT_TIMEOUT_S, SIMULATED_CONNECT_TIMEOUT_S = 1.0, 5.0
 # nothing hangs (seen with the load average at 10 on 2 cores). Real boards have their own CPU
 # and keep the defaults; a silent simulated board is still found, within a second.
 SIMULATED_LIMITS = SafetyLimits(watchdog_s=1.0, silent_after_s=1.0)
+# The same holds for a board that keeps a watchdog of its own, set in its firmware rather than
+# by the host (a profile's ``watchdog``: the lab board's and ODrive's 0.6 s): simulated beside
+# the host, it runs with the host's watchdog time where its own is shorter. The boards' clock
+# leaves out the stalls of this whole process, not a host loop slowed by sharing a crowded CPU
+# and the GIL with the boards' own solver and the emulated adapter: on 2 cores at load 12-16
+# the host's commands reached simulated ODrives up to 0.5 s apart on that clock. Real boards
+# have their own CPU and keep their firmware's time.
 # A send waits for the other end to take the frame (a full USB-serial or SLCAN buffer). An
 # adapter or pty served by simulated boards in this process drains only when this process's
 # threads get the CPU and the GIL, which on a loaded machine can take longer than the 0.5 s
-# that means a lost link on real hardware (python-can's slcan reads one byte per call, so the
-# emulated adapter alone needs a good share of a core at full bus load).
+# that means a lost link on real hardware.
 SIMULATED_SEND_TIMEOUT_S = 3.0
 
 
@@ -95,7 +101,8 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
         if port == "slcan-pty":
             transport_kwargs["sleep_after_open"] = 0  # a pty needs no adapter reset wait
         mock = MockArm(robot, mock_link(port), effect=effect, faults=faults or (), seed=seed,
-                       speed=speed, **(mock_options or {})).start()
+                       speed=speed, watchdog_floor_s=limits.watchdog_s,
+                       **(mock_options or {})).start()
         port = mock.port
     elif faults or effect is not None:
         raise ValueError(f"faults and effects exist only on the simulated arm, not on port "

@@ -153,6 +153,18 @@ class _Rx:
         against the status period over ``rate_window`` (judged only once a whole window has
         been watched, and not during a silence, which is ``BoardSilent``'s to call), less
         the ``starved_s`` of that window in which the host could hear nothing.
+
+        Why the rate, like the silence watchdog, leaves out the host's stalls (``HostLag``)
+        and nothing more: while this process cannot run, a board's frames wait in the
+        adapter's or the kernel's buffer and arrive late in a burst (counted then), and
+        simulated boards, which run in this process, send none at all; neither is the bus
+        losing frames, and the verdict is only delayed (a whole window of stall leaves too
+        few frames to judge). A host that runs but reads more slowly than the bus sends is
+        not discounted: a real adapter's buffer then overflows and the frames are gone, so
+        the arm would be steered on readings older than the board's cycle. That is a loss
+        to stop for, and its remedy is a faster reader (python-can's SLCAN interface took a
+        system call per byte; ``pimbs_hw.transport.slcan`` reads in bulk). Counter gaps
+        need no discount: a counter says what was sent, whenever it is read.
         """
         if self.counted:
             while self.gaps and now - self.gaps[0][0] > window_s:

@@ -9,6 +9,8 @@ documented behaviour directly, without the host.
 
 from __future__ import annotations
 
+import dataclasses
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -135,7 +137,10 @@ def test_collection_frames_are_odrives_and_commands_wait_for_closed_loop(bus):
 
 def test_watchdog_trip_reports_idle_then_rearms_and_confirms(bus):
     port, sniff = bus
-    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=LIMITS) as (driver, mock):
+    # a host watchdog no longer than ODrive's own: the simulated axes keep their 0.6 s
+    limits = dataclasses.replace(LIMITS, watchdog_s=0.6)
+    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=limits) as (driver, mock):
+        assert [b.watchdog_s for b in mock.boards] == [0.6] * 4
         driver.command("tension", 30.0)
         driver.dwell(0.2)
         time.sleep(1.2)  # a hung host: ODrive's watchdog (0.6 s) disarms every axis
@@ -163,6 +168,36 @@ def test_watchdog_trip_reports_idle_then_rearms_and_confirms(bus):
         for k in range(trip, clear):  # latched: every heartbeat in between still says so
             if frames[k][0] == node and frames[k][1] == "Heartbeat":
                 assert frames[k][2]["Axis_Error"] & watchdog
+
+
+def test_a_board_loop_running_late_still_sees_every_command_that_reached_it(bus):
+    """The simulated axes' loop stops in one tick (a slow solve) for longer than their
+    watchdog while the host keeps commanding: the commands that reached the axes meanwhile
+    feed their watchdogs before the next tick checks them, as on an ODrive, whose watchdog
+    is fed as each frame arrives."""
+    port, _ = bus
+    # ODrive's own 0.6 s; the loop's stop (0.9 s) stays short of the host's silence limit
+    limits = dataclasses.replace(LIMITS, watchdog_s=0.6)
+    with open_arm(port, ODRIVE_ROBOT, speed=10.0, limits=limits) as (driver, mock):
+        late_s = 1.5 * mock.boards[0].watchdog_s
+        assert late_s < limits.silent_after_s
+        driver.command("tension", 30.0)
+        driver.dwell(0.3)
+        step, slow, started = mock.plant.step, threading.Event(), threading.Event()
+
+        def slow_step(dt):
+            if slow.is_set() and not started.is_set():
+                started.set()
+                time.sleep(late_s)  # sleeps without the GIL: not a stall of this process
+            return step(dt)
+
+        mock.plant.step = slow_step
+        time.sleep(0.05)  # the axes have taken every command: none is left over for later
+        slow.set()
+        assert started.wait(1.0)
+        time.sleep(0.1)  # the next commands reach the axes well after that tick began
+        driver.dwell(late_s + 0.5)  # commands every 20 ms; raises WatchdogExpired on a trip
+        assert mock.snapshot().modes == ("tension",) * 4  # a disarmed axis is "idle"
 
 
 def test_fault_that_persists_is_reported_idle_with_the_devices_words():

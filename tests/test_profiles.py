@@ -4,6 +4,7 @@ whole collection hardware-in-the-loop, over python-can virtual and a real interf
 
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from pimbs_arm.model import ArmModel
 from pimbs_cli.main import main
 from pimbs_hw import open_arm
 from pimbs_hw.connect import SIMULATED_LIMITS
+from pimbs_hw.mock import MockArm
 from pimbs_hw.protocol.profile import ProfileError, load_profile
 from pimbs_hw.protocol.profiles import profile_path
 from pimbs_hw.safety import (
@@ -143,6 +145,24 @@ def test_every_fault_ends_in_a_named_state(robot, unreachable, spec, stop, per_m
         assert wait_until(lambda: np.allclose(mock.snapshot().tension, floor, atol=1.0))
         with pytest.raises(SafetyStop):
             driver.command("tension", 60.0)
+
+
+@pytest.mark.parametrize("robot", [LAB_ROBOT, ODRIVE_ROBOT], ids=["lab-board", "odrive"])
+def test_boards_simulated_beside_the_host_keep_its_watchdog_where_theirs_is_shorter(robot):
+    """A board's own watchdog (the profile's 0.6 s, set in its firmware) holds wherever the
+    boards are not simulated in the host's process (``pimbs mockbus``); beside the host,
+    where they share its CPU, they get the host's longer watchdog time."""
+    def watchdogs(mock):
+        return [b.watchdog_s if hasattr(b, "watchdog_s") else b.watchdog[0]
+                for b in mock.boards]
+
+    profile_s = load_profile(profile_path("odrive-cansimple") if robot == ODRIVE_ROBOT
+                             else LAB / "lab_muscle_board.profile.yaml").watchdog[0]
+    assert profile_s == 0.6 < LIMITS.watchdog_s
+    with MockArm(robot, f"virtual:dog-{uuid.uuid4().hex[:10]}") as mock:
+        assert watchdogs(mock) == [profile_s] * 4
+    with open_arm("virtual", robot, limits=LIMITS) as (_, mock):
+        assert watchdogs(mock) == [LIMITS.watchdog_s] * 4
 
 
 # ------------------------------------------------------------- whole collection, HIL

@@ -42,6 +42,7 @@ CAN_ERR_PROT = 0x08  # SocketCAN error class: protocol violation (a frame failed
 log = logging.getLogger(__name__)
 OVERHEAT_RATE_C_PER_S = 400.0  # injected thermal runaway: past any limit within 0.15 s
 DROP_KEEP_EVERY = 4  # drop-frames: 3 of every 4 status frames lost (75 %, never a long gap)
+DRAIN_S = 0.05  # the longest the board loop acts on received frames before its next tick
 _ANGLE_MIN, _ANGLE_MAX = signal_range(JointStatus, "angle_rad")
 
 
@@ -91,7 +92,7 @@ class MockArm:
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
                  encoder_offset_m=None, winding=None,
-                 plant: Path | str | None = None) -> None:
+                 plant: Path | str | None = None, watchdog_floor_s: float = 0.0) -> None:
         from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
@@ -107,6 +108,10 @@ class MockArm:
         self.rng = np.random.default_rng(seed)
         self.noise = noise
         self.tick_s, self.status_period_s = tick_s, status_period_s
+        # the shortest watchdog time of a board that keeps its own (a profile's, set in its
+        # firmware): ``open_arm`` gives boards simulated beside the host the host's own
+        # watchdog time as for every board it configures (see ``pimbs_hw.connect``)
+        self.watchdog_floor_s = watchdog_floor_s
         m = len(self.muscles)
         ambient = 25.0 + (self.rng.normal(0, 0.5, m) if noise else 0.0)
         if plant is None:
@@ -178,13 +183,15 @@ class MockArm:
         from pimbs_hw.protocol.profile import load_profile
 
         profile = load_profile(profile_path(name))
+        watchdog = None if profile.watchdog is None else (
+            max(profile.watchdog[0], self.watchdog_floor_s), profile.watchdog[1])
         if profile.name == "odrive-cansimple":  # the device itself, from ODrive's documentation
             tension = profile.status["tension"]
             return ODriveAxis(spec, now, turns_per_m=profile.status["position"].per_si,
                               nm_per_n=tension.per_si, winding=winding,
-                              watchdog_s=profile.watchdog[0] if profile.watchdog else None,
+                              watchdog_s=watchdog[0] if watchdog else None,
                               torque_limit_nm=tension.rail[1] if tension.rail else 5.0)
-        return ProfileBoard(spec, profile, now, winding)
+        return ProfileBoard(spec, profile, now, winding, watchdog)
 
     # -- public ----------------------------------------------------------------------------
     def start(self) -> MockArm:
@@ -253,12 +260,16 @@ class MockArm:
         while not self._stop.is_set():
             try:
                 frame = self.transport.recv(max(0.0, next_tick - time.monotonic()))
+                # every frame that arrived before the tick runs is acted on first (a board's
+                # watchdog must see the command that reached it in time, also when this loop
+                # runs late behind a long tick), but a steady stream (CANopen SYNC at 1 kHz)
+                # must not hold the tick off: frames newer than this moment wait for it, and
+                # a backlog of them (after a stall) is taken at most DRAIN_S at a time
+                cutoff = max(next_tick, time.monotonic())
+                give_up = time.monotonic() + DRAIN_S
                 while frame is not None:
                     self._on_frame(frame)
-                    # every frame that arrived before the tick was due is acted on first (a
-                    # board's watchdog must see the command that reached it in time), but a
-                    # steady stream (CANopen SYNC at 1 kHz) must not hold the tick off
-                    if frame.timestamp >= next_tick:
+                    if frame.timestamp >= cutoff or time.monotonic() > give_up:
                         break
                     frame = self.transport.recv(0.0)
             except HardwareError as exc:  # a broken link is the host's problem to report

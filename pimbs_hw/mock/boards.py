@@ -107,8 +107,11 @@ class ProfileBoard:
 
     checksum = False
 
-    def __init__(self, spec, profile: Profile, now: float, winding: int = 1) -> None:
+    def __init__(self, spec, profile: Profile, now: float, winding: int = 1,
+                 watchdog: tuple[float, str] | None = None) -> None:
+        """``watchdog``: (timeout s, action) the firmware runs with; default the profile's."""
         self.spec, self.profile = spec, profile
+        self.watchdog = profile.watchdog if watchdog is None else watchdog
         self.winding = 1 if winding >= 0 else -1  # -1: the encoder counts down as wire pays out
         node_id = {name: node for name, node in profile.nodes.items()}
         self.mode, self.target = "hold", math.nan
@@ -169,7 +172,7 @@ class ProfileBoard:
     def supervise(self, now: float, reading: SiReading) -> None:
         if self.mode == "hold" and math.isnan(self.target):
             self.target = reading.position_m  # power-up: hold where it is
-        dog = self.profile.watchdog
+        dog = self.watchdog
         if dog is not None and now - self.last_command > dog[0] and self.mode not in (
                 "relax", "idle", "hold"):
             self.mode, self.target = ("relax", self.relax_n) if dog[1] == "relax" else (

@@ -26,6 +26,7 @@ from pimbs_hw.errors import PortError
 from pimbs_hw.host_lag import host_lag
 from pimbs_hw.safety import BusOff, LinkLost, SafetyStop
 from pimbs_hw.transport.base import Frame, QueuedTransport
+from pimbs_hw.transport.slcan import SlcanBus
 
 VIRTUAL_DEFAULT_CHANNEL = "pimbs"
 # a send that cannot go out this long is a lost link (a full adapter buffer for a moment is
@@ -84,6 +85,17 @@ def parse_can_port(port: str) -> dict[str, Any]:
     return kwargs
 
 
+def open_bus(kwargs: dict[str, Any]) -> can.BusABC:
+    """``can.Bus(**kwargs)``, with python-can's configuration filled in as it does; the
+    ``slcan`` interface (named here or only in the configuration) opens as ``SlcanBus``,
+    which reads what the adapter sent in bulk instead of one byte per call."""
+    config = dict(can.util.load_config(config=kwargs))
+    if config["interface"] != "slcan":
+        return can.Bus(ignore_config=True, **config)
+    del config["interface"]
+    return SlcanBus(config.pop("channel"), **config)
+
+
 def _said(exc: BaseException, logged: list[str]) -> str:
     """What python-can said: its logged warnings first (they name the missing library)."""
     return _one_line("; ".join(dict.fromkeys([*logged, f"{type(exc).__name__}: {exc}"])))
@@ -130,7 +142,7 @@ class CanTransport(QueuedTransport):
         kwargs = {**parse_can_port(port), **bus_kwargs}
         with _python_can_warnings() as logged:
             try:
-                self.bus = can.Bus(**kwargs)
+                self.bus = open_bus(kwargs)
             except Exception as exc:  # noqa: BLE001 - a vendor interface fails in any way
                 # (NameError from kvaser without canlib, TypeError from socketcand without a
                 # host): it is the adapter's problem, not ours, and gets one line
