@@ -21,13 +21,16 @@ and commands are ramped in small increments at a limited rate:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pimbs_arm.model import ArmModel
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.link import ArmLink, Reading
 from pimbs_hw.collection.plan import Target
+
+MOVE_KNOTS = 8  # poses along a move whose balancing tensions are solved (linear between)
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,12 @@ class MoveConfig:
     Tension increments and rates are shares of each muscle's f_max (25 N and 1000 N/s for a
     600 N muscle): the ringing a load step excites in an arm grows with the step, and the
     room between the plan's tensions and the boards' ceiling is a share of f_max too.
+
+    ``quasi_static``: the arm has no inertia (the built-in simulated arm, which follows each
+    equilibrium without swinging): a held wire's length steps are still spaced evenly in
+    tension and no larger than a tension command's (the boards servo through the wire's
+    friction, and a large step overshoots), but not slowed to the tension rate, as nothing
+    rings.
     """
 
     length_step: float = 1e-3             # m per command cycle
@@ -44,6 +53,7 @@ class MoveConfig:
     length_rate: float = 0.05             # m/s
     tension_rate_of_f_max: float = 5 / 3  # of f_max per second
     speed: float = 1.0                    # time speed-up of a simulated arm: rates scale with it
+    quasi_static: bool = False            # the arm cannot ring (see above)
 
     def meta(self) -> dict:
         return asdict(self)
@@ -61,7 +71,8 @@ class Ramp:
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
           f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
-    to go through, limited like a tension command's (the steps and the rate)."""
+    to go through, limited like a tension command's: the steps, and the rate unless the arm
+    is quasi-static (``MoveConfig.quasi_static``)."""
     tension_step = cfg.tension_step_of_f_max * f_max
     tension_rate = cfg.tension_rate_of_f_max * f_max * cfg.speed
     delta = np.abs(end - start)
@@ -69,7 +80,8 @@ def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: 
     seconds = delta / np.where(is_length, cfg.length_rate * cfg.speed, tension_rate)
     if tension_span is not None:
         steps = np.maximum(steps, tension_span / tension_step)
-        seconds = np.maximum(seconds, tension_span / tension_rate)
+        if not cfg.quasi_static:
+            seconds = np.maximum(seconds, tension_span / tension_rate)
     n = max(1, int(np.ceil(np.max(steps))))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
@@ -121,15 +133,38 @@ def _pretension(model: ArmModel, target: Target) -> np.ndarray:
 
 
 def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
-         cfg: MoveConfig) -> Ramp:
-    """Length commands from where the arm is to ``target.approach_length``."""
+         cfg: MoveConfig, balance: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+         ) -> Ramp:
+    """Length commands from where the arm is to ``target.approach_length``.
+
+    ``balance(θ, floor)``: the lowest tensions of at least ``floor`` that hold θ. With it,
+    the tensions the lengths are computed for hold each pose the path passes (solved at
+    ``MOVE_KNOTS`` poses with floors blended from the start's tensions to the approach's,
+    linear between them); the start's own imbalance (measured tensions) is blended out.
+    Without it (or where a pose on the way cannot be held), the start and end tensions
+    blend linearly. Lengths at unbalanced tensions put the arm where those tensions balance
+    instead, and on an arm with a soft direction (the two proximal joints of MyoSuite's
+    finger) that was far enough off the path for the arm to end beside the target's
+    approach, in another rest position of the same lengths.
+    """
     f_now = np.maximum(now.tension, 0.0)
     f_end = _pretension(model, target)
     start_error = now.length - model.length(theta_now, f_now)
+    knots = np.linspace(0.0, 1.0, MOVE_KNOTS + 1)
+    along = np.outer(1.0 - knots, f_now) + np.outer(knots, f_end)  # (knots, M)
+    if balance is not None:
+        try:
+            held = np.array([balance(theta_now + s * (target.theta - theta_now), floor)
+                             for s, floor in zip(knots, along, strict=True)])
+        except InfeasiblePoseError:
+            pass
+        else:
+            along = held + np.outer(1.0 - knots, f_now - held[0])
 
     def path(s: float) -> np.ndarray:
         theta = theta_now + s * (target.theta - theta_now)
-        return model.length(theta, f_now + s * (f_end - f_now)) + (1.0 - s) * start_error
+        f = np.array([np.interp(s, knots, column) for column in along.T])
+        return model.length(theta, f) + (1.0 - s) * start_error
 
     return _ramp("length", now.length, target.approach_length,
                  np.ones(model.n_muscles, bool), cfg, model.f_max, path)
