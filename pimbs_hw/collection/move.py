@@ -41,11 +41,11 @@ class MoveConfig:
     600 N muscle): the ringing a load step excites in an arm grows with the step, and the
     room between the plan's tensions and the boards' ceiling is a share of f_max too.
 
-    ``quasi_static``: the arm has no inertia (the built-in simulated arm, which follows each
-    equilibrium without swinging): a held wire's length steps are still spaced evenly in
-    tension and no larger than a tension command's (the boards servo through the wire's
-    friction, and a large step overshoots), but not slowed to the tension rate, as nothing
-    rings.
+    ``quasi_static``: the arm has no inertia and no friction in its tension loops (the
+    built-in simulated arm, which follows each equilibrium without swinging and takes each
+    cycle's commands together): a held wire's length steps are still spaced evenly in tension,
+    but as many and as fast as its length change needs, not a tension command's, as nothing
+    rings and no board lags another.
     """
 
     length_step: float = 1e-3             # m per command cycle
@@ -71,17 +71,16 @@ class Ramp:
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
           f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
-    to go through, limited like a tension command's: the steps, and the rate unless the arm
+    to go through, limited like a tension command's (the steps and the rate) unless the arm
     is quasi-static (``MoveConfig.quasi_static``)."""
     tension_step = cfg.tension_step_of_f_max * f_max
     tension_rate = cfg.tension_rate_of_f_max * f_max * cfg.speed
     delta = np.abs(end - start)
     steps = delta / np.where(is_length, cfg.length_step, tension_step)
     seconds = delta / np.where(is_length, cfg.length_rate * cfg.speed, tension_rate)
-    if tension_span is not None:
+    if tension_span is not None and not cfg.quasi_static:
         steps = np.maximum(steps, tension_span / tension_step)
-        if not cfg.quasi_static:
-            seconds = np.maximum(seconds, tension_span / tension_rate)
+        seconds = np.maximum(seconds, tension_span / tension_rate)
     n = max(1, int(np.ceil(np.max(steps))))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
