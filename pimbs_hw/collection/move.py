@@ -7,13 +7,14 @@ reproduces this as a saturated loadcell). So we never step. Modes are switched o
 new command equals what the muscle is doing now, wires are loaded only while the pose is held,
 and commands are ramped in small increments at a limited rate:
 
-* ``release``: at the old pose, held muscles ramp to their low-pretension length and the others
-  to the pretension (what the slack removal did, undone), so the move happens at low tension
-  where a millimetre of mismatch costs little;
+* ``release``: at the old pose, held muscles ramp to their approach length and the others to
+  the approach tension (what the slack removal did, undone), so the move happens at low
+  tension where a millimetre of mismatch costs little;
 * ``move``: all muscles length-controlled along the straight joint-space path from the current
-  pose to the target at the pretension; the model's error at the start (measured minus
-  modelled lengths) is blended out along the way, so the first command is where the arm is;
-* ``take_up_slack``: held muscles ramp from the pretension length to the QP length, the others
+  pose to the target, at tensions that balance each pose on the way; the model's error at the
+  start (measured minus modelled lengths) is blended out along the way, so the first command
+  is where the arm is;
+* ``take_up_slack``: held muscles ramp from the approach length to the QP length, the others
   from their current tension to the QP tension: first past them (the overshoot of
   ``plan.Target``), then back, so every muscle's last motion has a known direction.
 """
@@ -127,7 +128,7 @@ def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) ->
 
 
 def _pretension(model: ArmModel, target: Target) -> np.ndarray:
-    """The low tension the approach lengths were computed for."""
+    """The approach tensions the approach lengths were computed for."""
     return model.tension_from_stretch(model.h_geom(target.theta) - target.approach_length)
 
 

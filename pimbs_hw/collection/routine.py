@@ -1,23 +1,28 @@
 """The collection loop: per sample, move to the pose, remove slack, settle, read, write.
 
 Order of events for sample i (see ``plan.Target``): every muscle length-controlled, ramped
-to the geometric length of a low pretension (the arm moves there; ``move.py``) until the
-motors are near those lengths; then the load-bearing muscles held in length and the others
-tension-controlled, ramped to the QP tensions (slack removed, pose kept), settle (the one
-full wait: the arm's creep from the move ends during the slack removal), read, and append
-one row. The slack removal overshoots the holding and comes back (``plan.Target.approach``),
-so each muscle's last motion, and with it the capstan friction, has a known direction. The
-row is on disk (atomically) before the next pose is commanded, so an interruption of any kind
-loses at most the sample in progress.
+to the geometric length of the approach tensions, the lowest that hold the pose stiffly (the
+arm moves there; ``move.py``) until the motors are near those lengths; then the load-bearing
+muscles held in length and the others tension-controlled, ramped to the QP tensions (slack
+removed, pose kept), settle (the one full wait: the arm's creep from the move ends during
+the slack removal), read, and append one row. The slack removal overshoots the holding and
+comes back (``plan.Target.approach``), so each muscle's last motion, and with it the capstan
+friction, has a known direction. The row is on disk (atomically) before the next pose is
+commanded, so an interruption of any kind loses at most the sample in progress.
 
 Between poses the slack removal is undone and the joints come to rest before the next move
 starts: under real dynamics an arm released at low tension swings, and a move commanded
-from a snapshot of a swinging arm runs it into a length-held wire.
+from a snapshot of a swinging arm runs it into a length-held wire. The first move starts
+from the relaxed arm at rest (or, where relaxing would let it fall out of its routed range,
+``relax.py``, from the arm held at its motors' lengths). The quasi-static simulated arm says
+itself when it rests (``ArmLink.at_rest``); every other arm is judged from its readings.
 
 From the move on, the routine watches below the boards' ceiling (``link.LoadGuard``): a wire
 past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
 the slack removal starts, gives that pose up: it is unloaded from where the arm is, recorded
-as skipped with a warning naming what happened, and the collection goes on. A description
+as skipped with a warning naming what happened, the arm starts over relaxed (where that is
+safe), and the collection goes on. A run that keeps fewer than half of the poses it tried is
+reported as failed (``Summary.failed``), not complete. A description
 that gets a load or a moment arm wrong fails on a few poses, not the whole collection; the
 boards' ceiling still stops everything that the guard cannot see coming.
 """
