@@ -56,6 +56,9 @@ OVERSHOOT_TOL = 3e-4
 LOAD_LIMIT = 0.95
 # a run that gives up more than this share of the poses it tried is no complete collection
 GIVE_UP_SHARE = 0.5
+# a tension-controlled muscle counts as at rest within this share of its command (or the
+# settle tolerance): far enough from a relax not yet followed (0 N read against 10 N)
+REST_TENSION_SHARE = 0.25
 
 Holding = tuple[tuple[str, ...] | str, np.ndarray]  # (mode, command) sent while holding
 
@@ -261,7 +264,7 @@ class Collector:
         is solved: it then only closes in on it), else judged from the readings (motors at
         their commands, joints still; see ``SettleConfig.reached``)."""
         if self.link.at_rest() is None:
-            return hold_until_settled(self.link, mode, command, self.settle.reached(),
+            return hold_until_settled(self.link, mode, command, self._rest_config(mode, command),
                                       self.model.muscles)
         start = time.monotonic()
         while True:
@@ -271,6 +274,19 @@ class Collector:
             if self.link.at_rest() or elapsed >= self.settle.timeout:
                 return Settled(reading, True, elapsed, 1)
             time.sleep(self.settle.poll)
+
+    def _rest_config(self, mode: tuple[str, ...] | str, command: np.ndarray) -> SettleConfig:
+        """Rest judged from the readings: the end of a move (``SettleConfig.reached``), and
+        the tension-controlled muscles at their tensions (within ``REST_TENSION_SHARE`` of
+        them, at least the settle tolerance). An arm that has not yet begun to follow a new
+        tension command (a relax at the start: boards or a simulated arm running behind, as
+        on a loaded machine) reads as still as one at rest; the move planned from there
+        started from where the arm was about to leave."""
+        modes = (mode,) * len(command) if isinstance(mode, str) else tuple(mode)
+        is_tension = np.array([m != "length" for m in modes])
+        tol = np.maximum(self.settle.tension_tol, REST_TENSION_SHARE * np.abs(command))
+        return dataclasses.replace(self.settle.reached(),
+                                   tension_tol=np.where(is_tension, tol, np.inf))
 
     def _overshot(self, target: Target) -> SettleConfig:
         """Reached the overshoot: every motor within ``OVERSHOOT_TOL`` of it (in length, or

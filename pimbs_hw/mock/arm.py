@@ -274,12 +274,16 @@ class MockArm:
         while not self._stop.is_set():
             try:
                 frame = self.transport.recv(max(0.0, next_tick - time.monotonic()))
+                # every frame that arrived before the tick was due, or before this drain
+                # began, is acted on first (a board's watchdog must see the command that
+                # reached it in time, and the frames of one host cycle belong together), but
+                # a steady stream (CANopen SYNC at 1 kHz) must not hold the tick off. A tick
+                # that ran late (a loaded machine) must not leave one frame per tick acted
+                # on: the backlog would grow and the arm follow commands seconds old
+                drain_until = max(next_tick, time.monotonic())
                 while frame is not None:
                     self._on_frame(frame)
-                    # every frame that arrived before the tick was due is acted on first (a
-                    # board's watchdog must see the command that reached it in time), but a
-                    # steady stream (CANopen SYNC at 1 kHz) must not hold the tick off
-                    if frame.timestamp >= next_tick:
+                    if frame.timestamp >= drain_until:
                         break
                     frame = self.transport.recv(0.0)
             except HardwareError as exc:  # a broken link is the host's problem to report
