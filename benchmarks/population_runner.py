@@ -132,18 +132,25 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
     """Train one stacked batch; its JSON lines."""
     from dataclasses import replace
 
+    from pimbs_learn.selfcheck import BASIC, applies, self_check
     from pimbs_learn.train import train_runs
 
-    runs = []
+    runs, checks = [], []
     for j in batch:
         train, evaluate = split(samples[j.arm["arm"]], j.n, j.seed, max_eval)
-        runs.append(Run(train, evaluate, j.method.loss, j.seed, True, j.method.structure))
+        run = Run(train, evaluate, j.method.loss, j.seed, True, j.method.structure)
+        check = self_check(run) if j.method.check and applies(run) else None
+        if check is not None:  # what `pimbs train` then trains: this loss, or Basic
+            run = replace(run, loss=run.loss if check.keeps_physics else BASIC,
+                          torque_noise=check.torque_noise_rms)
+        runs.append(run)
+        checks.append(check)
     opts = replace(options, schedule=batch[0].method.schedule)
     t0 = time.perf_counter()
     results = train_runs(runs, opts)
     seconds = time.perf_counter() - t0
     lines = []
-    for j, r in zip(batch, results, strict=True):
+    for j, r, check in zip(batch, results, checks, strict=True):
         truth = j.arm.get("truth", {})
         lines.append({
             "arm": j.arm["arm"], "family": j.arm["family"], "simulator": j.arm["simulator"],
@@ -154,7 +161,8 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
             "best_epoch": r.best_epoch, "n_eval": r.run.eval.n_samples,
             "torque_noise_rms": r.torque_noise_rms, "device": options.device,
             "seconds": seconds / len(batch), "batch_seconds": seconds,
-            "batch_runs": len(batch)})
+            "batch_runs": len(batch),
+            "self_check": None if check is None else check.metrics()})
     return lines
 
 

@@ -8,9 +8,11 @@ from pathlib import Path
 import click
 
 from pimbs_cli.common import check_output, force_option, progress, user_errors
+from pimbs_learn.widths import DEFAULT_HIDDEN, HIDDEN
 
 LOSSES = ["basic", "basic+const", "basic+pinn", "basic+const+pinn"]
 DEFAULT_LOSS = "basic+const+pinn"
+DEFAULT_PAPER_ALPHA = 1e-5  # the paper's α (fixed weight, physical units)
 # Evaluation samples whose joint angles are estimated after training (a seeded draw): the
 # summary's cost stays bounded however large the evaluation set (`pimbs estimate` does all).
 JOINT_ANGLE_ROWS = 64
@@ -50,8 +52,16 @@ JOINT_ANGLE_ROWS = 64
 @click.option("--lr-schedule", "schedule", type=click.Choice(["exp", "constant", "cosine"]),
               default="exp", show_default=True,
               help="exp: lr decays to 1 % of --lr over the run; constant: the paper's Adam")
-@click.option("--hidden", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="width of the two hidden layers (the paper's 1000)")
+@click.option("--hidden", type=click.IntRange(min=1), default=DEFAULT_HIDDEN, show_default=True,
+              help="width of the two hidden layers (the paper's: 1000)")
+@click.option("--self-check/--no-self-check", "check", default=True, show_default=True,
+              help="train without the physics terms where the training rows do not show "
+                   "that the recorded torques help predict lengths at poses left out "
+                   "(each sample predicted from the others, with and without torques)")
+@click.option("--paper", is_flag=True,
+              help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
+                   "--lr-schedule constant --hidden 1000 --no-self-check (options given "
+                   "explicitly still apply)")
 @click.option("--robot", default=None,
               help="robot NAME|PATH: the prior, and τ where the recording's tau_gravity is "
                    "null [default: the recording's robot]")
@@ -67,12 +77,14 @@ JOINT_ANGLE_ROWS = 64
 @click.option("--threads", type=click.IntRange(min=1), default=None,
               help="CPU threads for torch [default: torch's]; 1 is fastest on a busy machine")
 @force_option()
+@click.pass_context
 @user_errors
-def command(threads: int | None, data: Path, map_kind: str, loss: str, structure: str,
-            alpha: float | None, weighting: str | None, prior: bool,
+def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, loss: str,
+            structure: str, alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
-            schedule: str, hidden: int, robot: str | None, device: str, out: Path | None,
-            json_path: Path | None, reference: bool, force: bool) -> None:
+            schedule: str, hidden: int, check: bool, paper: bool, robot: str | None,
+            device: str, out: Path | None, json_path: Path | None, reference: bool,
+            force: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording).
 
     Default: the series-elastic ATL-Map on top of the robot description's model (when the
@@ -83,6 +95,18 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     epoch kept (mean over samples and muscles of squared length error, m², ×1e5) is the
     result.
     """
+    if paper:
+        given = {name for name in ctx.params
+                 if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT}
+        paper_values = {"structure": "mlp", "prior": False, "alpha": DEFAULT_PAPER_ALPHA,
+                        "schedule": "constant", "hidden": HIDDEN, "check": False}
+        values = {k: v for k, v in paper_values.items() if k not in given}
+        structure = values.get("structure", structure)
+        prior = values.get("prior", prior)
+        alpha = values.get("alpha", alpha)
+        schedule = values.get("schedule", schedule)
+        hidden = values.get("hidden", hidden)
+        check = values.get("check", check)
     # refuse an output that exists or cannot be written before minutes of training
     if out is not None and not (out.is_dir() and not any(out.iterdir())):  # empty dir: ok
         check_output(out, force=force, what="model")
@@ -95,6 +119,7 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
     from pimbs_learn.reference import train_reference
     from pimbs_learn.run import TrainOptions
+    from pimbs_learn.selfcheck import applies, train_checked
     from pimbs_learn.session import model_error, prepare_run
     from pimbs_learn.train import train
     from pimbs_recording.atomic import write_text_atomic
@@ -112,7 +137,8 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
     torch.manual_seed(seed)
     options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden,
                            schedule=schedule)
-    trainer = train_reference if reference else train
+    checked = check and not reference and applies(run)
+    trainer = train_reference if reference else (train_checked if checked else train)
     weight = (f"automatic α ×{alpha:g}" if weighting == "auto" else f"α={alpha:g}")
     console.print(f"{map_kind.upper()}-Map ({run.structure}"
                   f"{f', prior {run.prior_robot}' if run.prior_robot else ''}), {run.loss.name}"
@@ -124,6 +150,8 @@ def command(threads: int | None, data: Path, map_kind: str, loss: str, structure
                       "are printed); stop now and add --out DIR to keep it", markup=False)
     with progress("training", epochs, "epochs", console=console) as update:
         result = trainer(run, options, progress=update)
+    if result.self_check is not None:
+        console.print(result.self_check.line(run.loss.name), markup=False)
 
     metrics = result.metrics()
     metrics.update(data=str(data), data_sha256=run.train.sha256,

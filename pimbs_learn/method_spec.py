@@ -1,11 +1,13 @@
 """A training method written as one word, for research drivers that compare many of them.
 
-``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE]``: the structure (``mlp``, the paper's network, or
+``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!check]``: the structure (``mlp``, the paper's network, or
 ``se``, series-elastic), the loss terms (``basic``, ``basic+const``, ``basic+pinn``,
 ``basic+const+pinn``), the physics weight (a number, α of the paper, default 1e-5; or
 ``auto``, optionally ``autoX``/``autoxX`` to scale the automatic weight by X) and the
-learning-rate schedule (default ``constant``, the paper's Adam). Examples:
-``se:basic+const+pinn@auto~exp`` (the default of ``pimbs train`` without a prior),
+learning-rate schedule (default ``constant``, the paper's Adam); ``!check`` runs the
+self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic.
+Examples: ``se:basic+const+pinn@auto~exp!check`` (the default of ``pimbs train`` without a
+prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 ``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
 """
 
@@ -28,11 +30,16 @@ class Method:
     structure: str
     loss: LossConfig
     schedule: str
+    check: bool = False  # the self-check decides between this loss and Basic
 
 
 def parse_method(spec: str) -> Method:
-    """Parse ``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE]``; ``ValueError`` naming what is wrong."""
-    body, _, schedule = spec.partition("~")
+    """Parse ``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!check]``; ``ValueError`` naming what is
+    wrong."""
+    text, _, flag = spec.partition("!")
+    if flag not in ("", "check"):
+        raise ValueError(f"method '{spec}': '!{flag}' is not '!check'")
+    body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
     loss, _, weight = rest.partition("@")
     if short not in STRUCTURE_NAMES:
@@ -46,4 +53,4 @@ def parse_method(spec: str) -> Method:
         config = LossConfig.parse(loss, float(weight[4:].lstrip("x") or 1.0), "auto")
     else:
         config = LossConfig.parse(loss, float(weight or 1e-5))
-    return Method(spec, STRUCTURE_NAMES[short], config, schedule)
+    return Method(spec, STRUCTURE_NAMES[short], config, schedule, check=flag == "check")

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 import torch
 
-HIDDEN = 1000
+from pimbs_learn.widths import DEFAULT_HIDDEN, HIDDEN  # noqa: F401 (re-exported)
+
 PARAM_NAMES = ("w1", "b1", "w2", "b2", "w3", "b3")
 Params = dict[str, torch.Tensor]
 

@@ -47,6 +47,12 @@ class NoiseEstimate:
     torque_rms: float
     length_scale: float  # RBF length-scale in scaled θ units
     evidence: float  # log marginal likelihood per observation
+    # leave-one-sample-out squared length errors (scaled units, summed over muscles), one
+    # per sample used: predicted from the other samples' lengths and torques, and from
+    # their lengths alone (same hyperparameters). What the torques add to a length
+    # prediction at a pose not trained on: the question the physics term answers.
+    loo_with_torque: np.ndarray | None = None
+    loo_without_torque: np.ndarray | None = None
 
 
 def _kernel_blocks(x: torch.Tensor, ell: float
@@ -173,7 +179,34 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
         denom = np.sqrt(m2) / math.sqrt(1 - b2**step) + eps
         z = z - (lr / (1 - b1**step)) * m1 / denom
     final, _ = _nll_and_grad(z, low, xt, ft, y, base, is_len, with_grad=False)
-    _, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
+    amp, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
     torque_rms = float(st * np.sqrt(np.mean(t_unit**2)))
+    blocks, _ = _kernel_blocks(xt, float(ell))
+    noise = torch.where(is_len, sl**2, st**2)
+    cov = amp**2 * _gp_covariance(blocks, ft) + base + torch.diag(noise + 1e-10)
+    sample = torch.cat([torch.arange(s).repeat_interleave(m), torch.arange(s).repeat_interleave(n)])
+    with_t = _loo_length_sse(cov, y, sample, is_len, s)
+    only_l = _loo_length_sse(cov[:n_len, :n_len], y[:n_len], sample[:n_len],
+                             is_len[:n_len], s)
     return NoiseEstimate(length_rms=sl * l_s, torque_rms=torque_rms, length_scale=ell,
-                         evidence=-final / len(y))
+                         evidence=-final / len(y), loo_with_torque=with_t,
+                         loo_without_torque=only_l)
+
+
+def _loo_length_sse(cov: torch.Tensor, y: torch.Tensor, sample: torch.Tensor,
+                    is_len: torch.Tensor, s: int) -> np.ndarray:
+    """(S,) squared length error of each sample predicted from all the others (its lengths
+    and torques left out together), summed over muscles.
+
+    Closed form for a Gaussian: with P = C⁻¹ and the held-out block I, the prediction error
+    is y_I − E[y_I | rest] = (P_II)⁻¹·(P·y)_I.
+    """
+    chol = torch.linalg.cholesky(cov)
+    prec = torch.cholesky_inverse(chol)
+    py = prec @ y
+    out = np.zeros(s)
+    for i in range(s):
+        idx = torch.nonzero(sample == i).flatten()
+        err = torch.linalg.solve(prec[idx][:, idx], py[idx])
+        out[i] = float((err[is_len[idx]] ** 2).sum())
+    return out

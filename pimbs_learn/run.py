@@ -42,6 +42,9 @@ class Run:
     # l = h_geom(θ) + learned correction; None: no prior
     prior: dict[str, np.ndarray] | None = field(default=None, compare=False)
     prior_robot: str | None = None
+    # the torque noise (N·m rms) the evidence of the training rows supports, when already
+    # estimated (the self-check estimates it once for all its folds); None: estimate it
+    torque_noise: float | None = field(default=None, compare=False)
 
     @property
     def map_name(self) -> str:
@@ -149,6 +152,10 @@ class TrainResult:
     curve_epochs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     curve_eval: np.ndarray = field(default_factory=lambda: np.zeros(0))
     curve_train: np.ndarray = field(default_factory=lambda: np.zeros(0))  # L_basic, same epochs
+    # the self-check that chose this run's loss (pimbs_learn.selfcheck), and the loss asked
+    # for when the check fell back to Basic; None without a check
+    self_check: Any = None
+    asked_loss: LossConfig | None = None
 
     def metrics(self) -> dict[str, Any]:
         return {
@@ -164,6 +171,8 @@ class TrainResult:
             "n_train": self.run.train.n_samples,
             "n_eval": self.run.eval.n_samples,
             "loss": self.run.loss.name,
+            "loss_asked": (self.asked_loss or self.run.loss).name,
+            "self_check": None if self.self_check is None else self.self_check.metrics(),
             "alpha": self.run.loss.alpha,
             "weighting": self.run.loss.weighting,
             "structure": self.run.structure,

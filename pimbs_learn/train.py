@@ -52,12 +52,24 @@ def _torque_floor(r: Run, auto: bool) -> tuple[float, float | None]:
     floor = (TORQUE_FLOOR * float(np.nan_to_num(np.abs(r.train.tau)).max() + 1e-12)) ** 2
     if not auto:
         return floor, None
-    t = r.train
-    try:
-        noise = estimate_noise(t.theta, t.tension, t.length, t.tau, seed=r.seed).torque_rms
-    except torch.linalg.LinAlgError:  # a degenerate sample set: keep the relative floor
+    noise = _evidence_noise(r.train, r.seed) if r.torque_noise is None else r.torque_noise
+    if not np.isfinite(noise):  # a degenerate sample set: keep the relative floor
         return floor, None
     return max(floor, noise ** 2), noise
+
+
+def torque_noise(run: Run) -> float:
+    """The torque noise (N·m rms) the evidence of ``run``'s training rows supports
+    (:mod:`pimbs_learn.noise`; with a prior, of the residual the network learns), or NaN
+    where the sample set is degenerate."""
+    return _evidence_noise(run.residual().train, run.seed)
+
+
+def _evidence_noise(t, seed: int) -> float:
+    try:
+        return estimate_noise(t.theta, t.tension, t.length, t.tau, seed=seed).torque_rms
+    except torch.linalg.LinAlgError:
+        return float("nan")
 
 
 def _stack(arrays: list[np.ndarray], dtype: torch.dtype, dev: torch.device) -> torch.Tensor:

@@ -247,7 +247,7 @@ def test_via_points_that_meet_give_numbers_not_warnings():
     assert (kin.cache.seg_len == 0).any(), "the pose no longer makes two via points meet"
     assert np.isfinite(kin.jacobian).all() and np.isfinite(hessian).all()
     # the length is the sum of the straight segments between the via points as placed
-    paths = backend.via_points(theta)
+    paths = [wire.attachments for wire in backend.wire_paths(theta)]
     want = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in paths]
     np.testing.assert_allclose(kin.length, want, rtol=1e-12, atol=1e-15)
     # the muscles whose via points meet get the middle of their one-sided derivatives;

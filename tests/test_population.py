@@ -128,6 +128,28 @@ def test_mujoco_plant_equal_to_its_description_lands_on_the_plan(arms):
     assert np.abs(sprung["theta"] - data["theta"][:3]).max() > 5e-3
 
 
+def test_mujoco_plant_holds_a_given_pose_plan(arms):
+    """The poses a diagnosis proposes (a poses file) are held on MuJoCo as the plant, as
+    ``simulate(poses=...)`` holds them on PIMBS's simulator: those poses, with their floors."""
+    from pimbs_arm.poses import PosePlan
+    from pimbs_hw.mock.mujoco_recording import record_plant
+
+    spec = arms["small"]
+    arm = spec.load()
+    seeded = plan_poses(arm, 8, spec.seed + 1, "atl")
+    pick = [5, 2]
+    plan = PosePlan(poses=seeded.poses[pick], floors=seeded.floors[pick],
+                    drawn_floors=seeded.drawn_floors[pick], replaced=())
+    data, _, stats = record_plant(arm, spec.mjcf, 99, "atl", seed=spec.seed, noise=0.0,
+                                  poses=plan)
+    assert not stats.skipped and list(data["sample"]) == [0, 1]
+    np.testing.assert_allclose(data["theta_command"], plan.poses, atol=0)
+    np.testing.assert_allclose(data["theta"], plan.poses, atol=2e-3)  # rad
+    planned = [arm.tension_distribution(plan.poses[i], plan.floors[i], f_max=hold_ceiling(arm))
+               for i in range(2)]
+    np.testing.assert_allclose(data["tension"], planned, rtol=0.02, atol=1.0)  # N
+
+
 def test_a_pose_that_does_not_settle_is_skipped_and_counted(arms):
     from pimbs_hw.mock.mujoco_recording import record_plant
 

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
-from pimbs_arm.poses import atl_floor_range, hold_ceiling, plan_poses
+from pimbs_arm.poses import PosePlan, atl_floor_range, hold_ceiling, plan_poses
 from pimbs_hw.mock.mujoco_plant import MujocoPlant, ringing
 from pimbs_recording.format import make_meta
 from pimbs_sim.effects import T_REF, Effect, World
@@ -69,13 +69,16 @@ def record_plant(arm: ArmModel, plant_xml: str | Path, n_samples: int, map_kind:
                  seed: int = 0, effects: tuple[Effect, ...] = (),
                  sensors: SensorModel | None = None, noise: float = 1.0,
                  timeout_s: float = 8.0, progress: Callable[[int], None] | None = None,
+                 poses: PosePlan | None = None,
                  ) -> tuple[dict[str, np.ndarray], dict, PlantRecordingStats]:
     """Record ``n_samples`` planned poses of ``arm`` (the description) on the MuJoCo plant
     ``plant_xml``; returns (columns, metadata, stats) for ``write_recording``.
 
     ``effects``: the loadcell's (``READING_EFFECTS``), ``joint_offset`` (the encoders read
     θ + δ) and ``elastic_stiffness`` (the plant's springs). Noise and the draw of poses are
-    seeded as in ``pimbs_sim.simulate.simulate``.
+    seeded as in ``pimbs_sim.simulate.simulate``. ``poses``: a plan to hold instead of the
+    seeded draws (``pimbs_arm.poses_file``: the poses a diagnosis proposes), as ``simulate``
+    takes it; ``n_samples`` is then its length.
     """
     t0 = time.perf_counter()
     sensors = SensorModel() if sensors is None else sensors
@@ -83,7 +86,8 @@ def record_plant(arm: ArmModel, plant_xml: str | Path, n_samples: int, map_kind:
     world = World(arm, reading)
     sigma = sensors.noise.scaled(noise)
     noise_rng = np.random.default_rng([seed, 2])
-    plan = plan_poses(arm, n_samples, seed, map_kind)
+    plan = plan_poses(arm, n_samples, seed, map_kind) if poses is None else poses
+    n_samples = len(plan.poses)
     stats = PlantRecordingStats(decay_s=ringing(Path(plant_xml), arm.robot).decay_s)
     plant = MujocoPlant(Path(plant_xml), plant_arm)
     n, m = arm.n_joints, arm.n_muscles

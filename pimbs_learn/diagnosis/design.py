@@ -39,6 +39,7 @@ from pimbs_arm.poses_file import pose_plan_csv
 from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.inputs import stretch_weights
 from pimbs_learn.diagnosis.model import (
+    SENSOR,
     Fit,
     Physics,
     Samples,
@@ -98,8 +99,8 @@ ORDER = ("link_mass", "elastic_stiffness", "joint_offset", "tendon_friction", "t
 def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel) -> tuple[Effect, ...]:
     """The fitted effects as the simulator conceals them (the loadcell chain in order)."""
     out = []
-    for u, p in sorted(zip(units, params, strict=True), key=lambda x: ORDER.index(
-            x[0].effect)):
+    fitted = [(u, p) for u, p in zip(units, params, strict=True) if u.effect not in SENSOR]
+    for u, p in sorted(fitted, key=lambda x: ORDER.index(x[0].effect)):
         p = float(p)
         muscles = () if u.part == "common" else (arm.muscles[u.index],)
         if u.effect == "link_mass":

@@ -22,6 +22,7 @@ from pimbs_learn.diagnosis.model import (
     fit_schema,
     profile_log_lik,
     residuals,
+    sensor_units,
 )
 
 SIGMA_FLOOR = (1e-7, 1e-5)  # m, N·m: never trust a channel more than its sensors allow
@@ -121,7 +122,7 @@ def choose_degree(make_physics, data: Samples, degrees: list[int]) -> int:
         ll = 0.0
         for i, test in enumerate(folds(data.n, 4, seed=1)):
             train = data.rows(np.setdiff1d(np.arange(data.n), test))
-            fit = fit_effects(physics, train, [], key=("deg", degree, i))
+            fit = fit_effects(physics, train, sensor_units(train), key=("deg", degree, i))
             r_len, r_tau = evaluate(physics, fit, data.rows(test))
             ll += profile_log_lik(r_len, r_tau)
         if ll > best_ll:

@@ -23,6 +23,7 @@ from pimbs_learn.diagnosis.model import (
     evaluate,
     fit_schema,
     schema_jacobian,
+    sensor_units,
 )
 from pimbs_recording.format import Recording
 
@@ -34,12 +35,39 @@ class DiagnosisInputError(ValueError):
     """Recordings that cannot be compared; the message names the files and what differs."""
 
 
+BRANCH_DEADBAND = 1.0  # N: a smaller change of a reading leaves its loadcell on its branch
+
+
 def samples_from(rec: Recording, tau: np.ndarray | None = None) -> Samples:
     t = rec.time.astype("datetime64[us]").astype(np.int64) / 1e6
+    prev_tension, prev_length, branch = collection_order(t, rec.tension, rec.length)
     return Samples(theta=rec.theta, tension=rec.tension, length=rec.length,
                    temperature=rec.temperature, approach=rec.approach.astype(float),
                    tau=rec.tau_gravity if tau is None else tau, time=t - t[0],
-                   sample=rec.sample)
+                   sample=rec.sample, prev_tension=prev_tension, prev_length=prev_length,
+                   branch=branch)
+
+
+def collection_order(time: np.ndarray, tension: np.ndarray, length: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per row, the readings logged just before it (in time order; zero before the first
+    row: a session starts at home, unloaded, where lengths and tensions are zero) and each
+    loadcell's hysteresis branch (+1 when its reading rose into the row by more than
+    ``BRANCH_DEADBAND``, −1 when it fell, else the previous row's; the first pose is reached
+    by loading) — what the sensor nuisances (``model.sensor_units``) need."""
+    order = np.argsort(time, kind="stable")
+    y, ln = tension[order], length[order]
+    prev_y = np.vstack([np.zeros((1, y.shape[1])), y[:-1]])
+    prev_l = np.vstack([np.zeros((1, ln.shape[1])), ln[:-1]])
+    change = y - prev_y
+    branch = np.ones_like(y)
+    current = np.ones(y.shape[1])
+    for i in range(len(y)):
+        current = np.where(np.abs(change[i]) > BRANCH_DEADBAND, np.sign(change[i]), current)
+        branch[i] = current
+    back = np.empty_like(order)
+    back[order] = np.arange(len(order))
+    return prev_y[back], prev_l[back], branch[back]
 
 
 def too_few_samples(path: object, n: int) -> DiagnosisInputError:
@@ -152,7 +180,7 @@ def length_weights(physics: Physics, data: Samples) -> tuple[np.ndarray, dict]:
     muscle Jacobian; length residuals of the well-tensioned half).
     """
     data.len_weight = None
-    fit = fit_effects(physics, data, [])
+    fit = fit_effects(physics, data, sensor_units(data))
     r_len, r_tau = evaluate(physics, fit, data)
     jac = schema_jacobian(physics, data.theta, fit.weights)
     g2 = np.mean(np.sum(jac**2, axis=1), axis=0)  # (N,) mean Σ_j G_jk²
@@ -251,9 +279,10 @@ def tie_to_reference(physics: Physics, real: Samples, ref: Samples) -> Physics |
     # Both sides may also rescale the elasticity: a stiffness error must not pass for (or
     # hide) a routing difference.
     elastic = [Unit("elastic_stiffness", j) for j in range(real.tension.shape[1])]
-    free = fit_effects(physics, real, elastic, passes=1)
+    sensor = sensor_units(real)
+    free = fit_effects(physics, real, sensor + elastic, passes=1)
     shifts = [Unit("joint_offset", k) for k in range(real.theta.shape[1])]
-    shifted = fit_effects(tied, real, elastic + shifts, passes=1)
+    shifted = fit_effects(tied, real, sensor + elastic + shifts, passes=1)
     # every muscle must match: one rerouted muscle forced onto the reference's path would
     # be explained by joint offsets and loadcell errors that are not there
     ratio = np.max(shifted.sigma_len / free.sigma_len)
@@ -286,6 +315,9 @@ def combine(parts: list[Paired]) -> Paired:
         out = Samples(**{k: np.concatenate([getattr(s, k) for s in samples])
                          for k in ("theta", "tension", "length", "temperature", "approach",
                                    "tau", "time", "sample")})
+        for k in ("prev_tension", "prev_length", "branch"):  # each session its own order
+            if all(getattr(s, k) is not None for s in samples):
+                setattr(out, k, np.concatenate([getattr(s, k) for s in samples]))
         out.temp_zero = np.concatenate([np.broadcast_to(z, s.tension.shape)
                                         for s, z in zip(samples, zero, strict=True)])
         out.session = np.concatenate([np.full(s.n, i) for i, s in enumerate(samples)])

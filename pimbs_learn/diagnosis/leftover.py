@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import f as f_dist
 
 from pimbs_learn.diagnosis.fit import fit_effects
-from pimbs_learn.diagnosis.model import Fit, Physics, Samples, evaluate
+from pimbs_learn.diagnosis.model import Fit, Physics, Samples, evaluate, sensor_units
 from pimbs_learn.diagnosis.select import P_VALUE
 
 REFERENCE_MARGIN = 2.0
@@ -89,7 +89,7 @@ def leftover(physics: Physics, fit: Fit, data: Samples, joints: list[str],
     channels = _channels(r_len, r_tau, joints, muscles)
     ref_channels = None
     if reference is not None and reference.n == data.n:
-        ref_fit = fit_effects(physics, reference, [])
+        ref_fit = fit_effects(physics, reference, sensor_units(reference))
         ref_channels = _channels(*evaluate(physics, ref_fit, reference), joints, muscles)
     n_groups = len(_groups(data, joints, True))
     threshold = P_VALUE / (len(channels) * n_groups)

@@ -65,6 +65,28 @@ class Unit:
         return f"{self.effect}[{self.index}]{'.' + self.part if self.part else ''}"
 
 
+SENSOR = ("sensor_lag", "loadcell_hysteresis")
+MAX_LAG = 0.9  # share of the previous reading: beyond it the undone reading is mostly noise
+
+
+def sensor_units(data: Samples) -> list[Unit]:
+    """The sensors' own nuisances, fitted beside every model and never named as effects.
+
+    Every board reads through a filter and every loadcell has hysteresis, on any arm. A
+    reading taken soon after the pose is reached keeps a share ``a`` of the previous one
+    (``y_i = x_i + a·(y_{i−1} − x_i)``, loadcells and motor encoders alike); a loadcell reads
+    lower on its loading branch than on its unloading one (``f ∓ h``). Neither is an error
+    of the arm's model, yet left out they are mistaken for one: on a population of drawn
+    arms a leak of 3 % of the previous reading and 0.7 N of hysteresis made a clean
+    recording name a link mass, capstan friction and a stiffness change
+    (docs/diagnosis-notebook.md). One leak ``a`` for all readings and one hysteresis ``h``
+    for all loadcells, when the rows' collection order is known.
+    """
+    if data.prev_tension is None:
+        return []
+    return [Unit("sensor_lag", -1, "common"), Unit("loadcell_hysteresis", -1, "common")]
+
+
 def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
     """Groups of units that are selected together (one group per muscle/joint/subtree)."""
     if effect == "thermal_drift":  # per muscle, or one coefficient shared by all loadcells
@@ -100,6 +122,13 @@ class Samples:
     # recordings (each zeroes its loadcells at its start); None: ``Physics.temp_zero``
     temp_zero: np.ndarray | None = None
     session: np.ndarray | None = None  # (B,) which recording each row came from
+    # (B, M) the readings logged just before each row in collection order (zero before a
+    # session's first row: the arm at home, unloaded, where lengths and tensions are zero),
+    # and each loadcell's branch (+1: its tension rose into this pose, −1: fell); None:
+    # unknown, and the sensor nuisances (``SENSOR``) then do nothing
+    prev_tension: np.ndarray | None = None
+    prev_length: np.ndarray | None = None
+    branch: np.ndarray | None = None
 
     def rows(self, idx: np.ndarray) -> Samples:
         return Samples(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
@@ -153,22 +182,26 @@ class State:
     tension: np.ndarray
     kappa: np.ndarray
     tau: np.ndarray
-    # (B, M) factor from each reading to the true tension (a gain, capstan friction), or
-    # None: it scales that reading's noise too (see ``residuals``)
+    # (B, M) factor by which undoing the readings scaled their noise (a gain, capstan
+    # friction, the sensor's lag), or None (see ``residuals``)
     scale: np.ndarray | None = None
+    length: np.ndarray | None = None  # (B, M) motor lengths with the sensor's lag undone
+    len_scale: float = 1.0            # ... and the factor that scaled their noise
 
 
 def apply_effects(physics: Physics, data: Samples, units: list[Unit],
                   params: np.ndarray) -> State:
     """Undo the effects: the true pose, tensions, elasticity and gravity they imply."""
     theta = data.theta
-    f = data.tension.astype(float, copy=True)
+    f, length, noise, len_noise = _undo_sensor(data, units, params)
     kappa = physics.kappa.copy()
     delta = np.zeros(theta.shape[1])
     gravity_extra = np.zeros(physics.gravity.coef.shape)
     gain = np.zeros(f.shape[1])
     scale = np.ones(f.shape[1])
     for u, p in zip(units, params, strict=True):
+        if u.effect in SENSOR:
+            continue
         if u.effect == "tension_offset":
             f[:, u.index] -= p
         elif u.effect == "thermal_drift":
@@ -196,13 +229,39 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
         factor = (1.0 if factor is None else factor) * np.exp(data.approach * gain)
     if factor is not None:
         f *= factor
+    if noise != 1.0:
+        factor = noise * (np.ones(f.shape) if factor is None else factor)
     tau = data.tau
     if np.any(delta):
         theta = theta - delta
         tau = tau + physics.gravity.torque(theta) - physics.gravity.torque(data.theta)
     if np.any(gravity_extra):
         tau = tau + physics.gravity.torque(theta, gravity_extra)
-    return State(theta, f, kappa, tau, factor)
+    return State(theta, f, kappa, tau, factor, length, len_noise)
+
+
+def _undo_sensor(data: Samples, units: list[Unit], params: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(tensions, lengths) as the sensors' filters and the loadcells' hysteresis had them
+    before reading, and the factor by which that scaled the readings' noise (tensions,
+    lengths). The chain is undone from the reading back: the filter first, then the branch."""
+    f = data.tension.astype(float, copy=True)
+    length = data.length
+    lag = hyst = 0.0
+    for u, p in zip(units, params, strict=True):
+        if u.effect == "sensor_lag" and data.prev_tension is not None:
+            lag = float(np.clip(p, -MAX_LAG, MAX_LAG))
+        elif u.effect == "loadcell_hysteresis" and data.branch is not None:
+            hyst = float(p)
+    noise = 1.0
+    if lag:
+        # x = (y − a·y_prev)/(1 − a): white reading noise comes out √(1 + a²)/(1 − a) as large
+        f = (f - lag * data.prev_tension) / (1.0 - lag)
+        length = (length - lag * data.prev_length) / (1.0 - lag)
+        noise = float(np.sqrt(1.0 + lag**2) / (1.0 - lag))
+    if hyst:
+        f = f + hyst * data.branch  # the loading branch (+1) reads low
+    return f, length, noise, noise
 
 
 def stretch_term(tension: np.ndarray) -> np.ndarray:
@@ -216,7 +275,8 @@ def stretch_term(tension: np.ndarray) -> np.ndarray:
 
 def schema_target(state: State, data: Samples) -> np.ndarray:
     """Length minus the elastic stretch: what the body schema h(θ) must explain."""
-    return data.length - state.kappa * stretch_term(state.tension)
+    length = data.length if state.length is None else state.length
+    return length - state.kappa * stretch_term(state.tension)
 
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
@@ -247,6 +307,8 @@ def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray
     r_len = schema_target(state, data) - values @ weights
     if data.len_weight is not None:
         r_len = r_len * data.len_weight
+    if state.len_scale != 1.0:  # in reading units, like the torques (``reading_scale``)
+        r_len = r_len / state.len_scale
     gt = grads @ weights  # Gᵀ per sample, (B, N, M)
     r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
     if state.scale is not None:

@@ -20,7 +20,7 @@ from pimbs_learn.diagnosis.inputs import (
 )
 from pimbs_learn.diagnosis.leftover import leftover
 from pimbs_learn.diagnosis.locate import locate
-from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate
+from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate, sensor_units
 from pimbs_learn.diagnosis.report import (
     ambiguity_entry,
     disputed_entry,
@@ -78,7 +78,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         raise too_few_samples(reals[0].path, paired.real.n)
     physics, model_info = build_physics(paired, kappa)
     data = paired.real
-    null = fit_effects(physics, data, [], key="full")
+    null = fit_effects(physics, data, sensor_units(data), key="full")  # the sensors' own
     named, tried, cv_null, final = select_effects(physics, data, null, effects, progress,
                                                   paired.reference)
     # held-out score of the final model on the null model's noise scale (the "before")
@@ -91,7 +91,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     disputed = [v for v in verdicts if v.contradictions]
     corrected = final
     if unsure or disputed:  # what --corrected undoes: the identified effects alone
-        units = [u for c in sure for u in c.units]
+        units = [*null.units, *(u for c in sure for u in c.units)]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
 
@@ -141,12 +141,24 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                         "named": any(c.effect == n.effect and set(c.units) <= set(n.units)
                                      for n in sure)} for c in tried],
         "model": {**model_info, "noise_torque_Nm": null.sigma_tau.tolist(),
-                  "noise_length_m": null.sigma_len.tolist()},
+                  "noise_length_m": null.sigma_len.tolist(), "sensors": _sensors(final)},
     }
     internals = {"physics": physics, "data": data, "null": null, "final": final,
                  "corrected": corrected, "paired": paired, "recording": reals[0],
                  "recordings": reals, "verdicts": verdicts}
     return result, internals
+
+
+def _sensors(fit) -> dict:
+    """The sensors' own nuisances as fitted beside the named effects (``sensor_units``)."""
+    names = {"sensor_lag": "lag_share", "loadcell_hysteresis": "hysteresis_N"}
+    out = {names[u.effect]: float(p) for u, p in zip(fit.units, fit.params, strict=True)
+           if u.effect in names}
+    if out:
+        out["meaning"] = ("each reading keeps lag_share of the previous one (a filter read "
+                          "soon after the pose); a loadcell reads hysteresis_N lower when "
+                          "its tension rose into the pose than when it fell")
+    return out
 
 
 def _read(source: Source) -> Recording:
@@ -162,7 +174,9 @@ def write_corrected(internals: dict, path: str | Path) -> None:
     """The real recording with the named effects undone: true tensions, angles, gravity.
 
     Only effects the recording identifies are undone: of two explanations it cannot tell
-    apart, correcting either would be a guess.
+    apart, correcting either would be a guess. The sensors' lag and hysteresis, fitted
+    beside every model (``model.sensor_units``), are undone too: they are how the boards
+    read, not an explanation that competes with another.
 
     Rows are those paired with the reference; extra columns and metadata are kept, and the
     metadata says what was corrected, so training on it is traceable.

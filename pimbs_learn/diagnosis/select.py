@@ -51,7 +51,7 @@ UNIT_Z = float(np.sqrt(chi2.isf(P_VALUE, 1)))  # a muscle/joint's own parameter:
 MAX_GROUPS = {"link_mass": 1}
 FD_STEP = {"tension_offset": 1e-2, "tension_gain": 1e-4, "thermal_drift": 1e-3,
            "tendon_friction": 1e-4, "elastic_stiffness": 1e-4, "joint_offset": 1e-6,
-           "link_mass": 1e-4}
+           "link_mass": 1e-4, "sensor_lag": 1e-4, "loadcell_hysteresis": 1e-2}
 
 
 @dataclass
@@ -373,7 +373,8 @@ def select_effects(physics: Physics, data: Samples, null: Fit,
 
     Returns (named effects, every candidate tried, null CV score, joint fit of the named).
     """
-    cv_null = cross_validate(physics, data, [], (null.sigma_len, null.sigma_tau))
+    cv_null = cross_validate(physics, data, null.units, (null.sigma_len, null.sigma_tau),
+                             x0=null.params)
     base, cv_base = null, cv_null
     named: list[Candidate] = []
     tried: list[Candidate] = []

@@ -1,0 +1,501 @@
+"""`pimbs diagnose` on a population of drawn arms: what it names against what was concealed.
+
+For every arm of a split of a population (``benchmarks/population.py``) this diagnoses, as a
+user with the recording, its clean reference and the robot description would
+(``pimbs_learn.diagnosis.run.diagnose(real, reference, robot)``):
+
+* the arm's recording (its concealed truth: the manifest's ``truth``), against a clean
+  reference of the same poses with **its own sensor noise** (``OUT/twins``; the
+  population's reference files draw the same noise as the recording, scaled, which a
+  user's simulated reference never does and which hides noise-made false alarms behind
+  the reference check);
+* its **null twin**: the same arm, sensors, noise and seed with the concealed effects (and
+  on MuJoCo the plant file's changes) removed, written into ``OUT/twins`` — the population
+  alone holds too few recordings without effects to measure false alarms;
+* for every recording the diagnosis calls confounded ("either A or B"), the **separating
+  poses** it proposes (``--poses-out``), collected on the same arm with the same concealed
+  effects and sensors (PIMBS's simulator, or MuJoCo as the plant with the same plant file)
+  into ``OUT/settle``, and both recordings diagnosed together.
+
+Scoring (decided before any run, see docs/diagnosis-notebook.md "On a population of drawn
+arms"):
+
+* **Targets** are concealed effects in the diagnosis' vocabulary
+  (``pimbs_learn.diagnosis.model.EFFECTS``). Two MuJoCo plant-file changes *are* vocabulary
+  effects and count as them: a body's mass (``link_mass``, the same name on both
+  simulators) and the tendons' friction loss (``plant_tendon_friction`` → ``tendon_friction``:
+  friction along the tendon's path that makes the reading depend on the direction the
+  tendon last moved, which is what ``tendon_friction`` means to a user; the capstan is its
+  model, MuJoCo's friction loss another).
+* **Nuisances**, for which naming nothing or "unexplained" is right and naming any effect is
+  wrong: the sensors (noise, motor heating, latency, hysteresis; every recording), and the
+  plant physics outside the vocabulary (a joint's friction loss, a joint spring, a muscle's
+  sites moved = another routing, which the diagnosis learns as the body schema).
+* A recording **with targets** is, by the names the diagnosis gives (``effects``; the
+  muscles and joints are reported, not scored): *wrong* if it names an effect outside the
+  targets; else *exact* if it names them all and calls nothing "either"; else, naming a
+  subset of them, *either* if it says "either A or B" (with whether a missing target is
+  among the options), *unexplained* if it says what is left is not explained, *missed*
+  otherwise.
+* A recording **without targets** (nulls: clean twins and recordings with nuisances only)
+  *names something* if it names an effect or says "either A or B" (both claim physics that
+  is not there); "unexplained" and nothing are right.
+* A confounded case is **resolved** when the two recordings together name exactly the
+  targets (nothing, for a null) and call nothing "either".
+
+Outputs: one JSON line per recording in ``OUT/diagnosis-SPLIT.jsonl`` (recordings already
+there are skipped, so an interrupted pass resumes), and the confusion tables per simulator
+on stdout (``--summary`` prints them from the file alone).
+
+    OMP_NUM_THREADS=1 nice -n 10 .venv/bin/python benchmarks/population_diagnosis.py \\
+        --population population --split dev --out population/diagnosis --jobs 2
+    .venv/bin/python benchmarks/population_diagnosis.py --summary \\
+        population/diagnosis/diagnosis-dev.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
+
+# The split, fixed before any diagnosis ran: even seeds 0-38 develop (the arms the learning
+# work develops on); odd seeds 41-79 judge (odd seeds 1-39 and even 40-78: neither).
+SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
+          "judge": [s for s in range(41, 80) if s % 2 == 1]}
+AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
+NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
+SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
+REFERENCE_NOISE = 10_000  # a reference's noise seed: its recording's seed + this
+VERSION = 1         # of what this script writes
+
+
+def targets(effects: list[dict[str, Any]]) -> list[str]:
+    """The vocabulary effects a recording conceals (sorted names, one per effect kind)."""
+    out = set()
+    for e in effects:
+        name = AS_TARGET.get(e["name"], e["name"])
+        if name in EFFECTS:
+            out.add(name)
+        elif e["name"] not in NUISANCES:
+            raise ValueError(f"concealed effect {e['name']!r} is neither a target nor a "
+                             "nuisance: decide how it counts")
+    return sorted(out)
+
+
+def nuisances(effects: list[dict[str, Any]]) -> list[str]:
+    return sorted(e["name"] for e in effects if e["name"] in NUISANCES)
+
+
+# ------------------------------------------------------------------------- conditions
+def conditions(truth: dict[str, Any], effects: bool = True):
+    """The manifest's truth as ``pimbs_sim.conditions.Conditions`` (``effects=False``: the
+    null twin's, same sensors and noise)."""
+    from pimbs_sim.conditions import Conditions
+    from pimbs_sim.sensors import SensorModel, SensorNoise, ThermalModel
+
+    s = truth["sensors"]
+    sensors = SensorModel(noise=SensorNoise(**s["noise"]), thermal=ThermalModel(**s["thermal"]),
+                          latency_s=s["latency_s"], read_after_s=s["read_after_s"],
+                          hysteresis_n=s["hysteresis_n"])
+    cond = Conditions(truth["simulator"], sensors, truth["noise"],
+                      tuple(truth["effects"]) if effects else ())
+    if effects and json.loads(json.dumps(cond.to_json())) != truth:
+        raise ValueError("the manifest's truth does not round-trip through Conditions")
+    return cond
+
+
+def description_mjcf(line: dict[str, Any], pop: Path) -> Path:
+    """The MJCF the muscle file names (the description, which is the null twin's plant)."""
+    import yaml
+
+    desc = pop / line["description"]
+    return desc.with_name(yaml.safe_load(desc.read_text())["mjcf"])
+
+
+def record(line: dict[str, Any], pop: Path, cond, plant: Path | None, seed: int,
+           poses=None) -> tuple[dict, dict]:
+    """(columns, metadata) of a recording of the arm under ``cond`` on its simulator."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_sim.simulate import simulate
+
+    arm = ArmModel.load(pop / line["description"])
+    n = line["samples"] if poses is None else len(poses.poses)
+    if line["simulator"] == "ours":
+        data, meta = simulate(arm, n, line["map"], seed=seed, effects=cond.sim_effects(),
+                              noise=cond.noise, sensors=cond.sensors, poses=poses)
+    else:
+        from pimbs_hw.mock.mujoco_recording import record_plant
+
+        data, meta, _ = record_plant(arm, plant, n, line["map"], seed=seed,
+                                     effects=cond.sim_effects(), sensors=cond.sensors,
+                                     noise=cond.noise, poses=poses)
+    meta["created"] = "2026-01-01T00:00:00Z"
+    meta["generator"] = "pimbs population"
+    return data, meta
+
+
+def null_twin(line: dict[str, Any], pop: Path, twins: Path) -> Path:
+    """The arm's recording with nothing concealed (cached by its settings)."""
+    from pimbs_recording.format import write_recording
+
+    path = twins / f"{line['arm']}.null.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], line["sha256"]["description"]])
+                         .encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    if path.is_file() and stamp.is_file() and stamp.read_text() == key:
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    plant = description_mjcf(line, pop) if line["simulator"] == "mujoco" else None
+    data, meta = record(line, pop, conditions(line["truth"], effects=False), plant,
+                        line["seed"])
+    write_recording(path, data, meta)
+    stamp.write_text(key)
+    return path
+
+
+def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
+                 poses=None, stem: str | None = None) -> Path:
+    """The clean reference of the recording made at ``seed`` (of ``poses``, or of the seed's
+    plan): the description on PIMBS's simulator, the same poses, noise of its own."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.simulate import simulate
+
+    path = folder / f"{stem or line['arm']}.reference.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], line["sha256"]["description"],
+                                     seed, REFERENCE_NOISE]).encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    if poses is None and path.is_file() and stamp.is_file() and stamp.read_text() == key:
+        return path
+    folder.mkdir(parents=True, exist_ok=True)
+    arm = ArmModel.load(pop / line["description"])
+    n = line["samples"] if poses is None else len(poses.poses)
+    data, meta = simulate(arm, n, line["map"], seed=seed, noise_seed=seed + REFERENCE_NOISE,
+                          poses=poses)
+    meta["created"] = "2026-01-01T00:00:00Z"
+    write_recording(path, data, meta)
+    stamp.write_text(key)
+    return path
+
+
+PROBES = ("plant_tendon_friction", "plant_joint_friction", "plant_joint_stiffness", "routing")
+
+
+def probe(line: dict[str, Any], pop: Path, twins: Path) -> tuple[Path, Any, Path]:
+    """A development probe of the plant physics the population rarely draws: the arm's
+    sensors, noise and seed on MuJoCo, with one plant-file change and nothing else (which
+    one cycles with the seed; drawn from the stream ``[seed, 8]`` with the population's
+    ranges). Only for arms recorded on MuJoCo."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from pimbs_recording.format import write_recording
+    from pimbs_sim.conditions import Conditions, _draw_effect, write_plant
+
+    name = PROBES[(line["seed"] // 8) % len(PROBES)]
+    spec = SimpleNamespace(muscles=line["muscles"], joints=line["joints"], dof=line["dof"],
+                           params=line["params"])
+    effect = _draw_effect(name, spec, "mujoco", np.random.default_rng([line["seed"], 8]))
+    path = twins / f"{line['arm']}.probe.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], effect]).encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    twins.mkdir(parents=True, exist_ok=True)
+    plant = write_plant(description_mjcf(line, pop), (effect,),
+                        twins / f"{line['arm']}.probe.xml")
+    base = conditions(line["truth"], effects=False)
+    cond = Conditions("mujoco", base.sensors, base.noise, (effect,))
+    if not (path.is_file() and stamp.is_file() and stamp.read_text() == key):
+        data, meta = record(line, pop, cond, plant, line["seed"])
+        write_recording(path, data, meta)
+        stamp.write_text(key)
+    return path, cond, plant
+
+
+# --------------------------------------------------------------------------- scoring
+def answer(result: dict[str, Any]) -> dict[str, Any]:
+    """What a diagnosis says, reduced to what is scored (and where, for the reader)."""
+    return {"named": sorted({e["name"] for e in result["effects"]}),
+            "where": {e["name"]: e["muscles"] + e["joints"] for e in result["effects"]},
+            "either": [sorted({o["name"] for o in a["either"]}) for a in result["ambiguous"]],
+            "unexplained": [u["why"] for u in result["unexplained"]]}
+
+
+def outcome(said: dict[str, Any], want: list[str]) -> str:
+    """One word for a diagnosis against the targets (module docstring)."""
+    named, want_set = set(said["named"]), set(want)
+    if not want_set:
+        if named or said["either"]:
+            return "named"
+        return "unexplained" if said["unexplained"] else "nothing"
+    if named - want_set:
+        return "wrong"
+    if named == want_set and not said["either"]:
+        return "exact"
+    if said["either"]:
+        return "either"
+    return "unexplained" if said["unexplained"] else "missed"
+
+
+def truth_in_either(said: dict[str, Any], want: list[str]) -> bool:
+    missing = set(want) - set(said["named"])
+    return bool(missing) and any(missing & set(e) for e in said["either"])
+
+
+# ------------------------------------------------------------------------ one recording
+def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: str,
+                 settle: bool) -> dict[str, Any]:
+    """Diagnose the recording (``kind`` "recording") or the null twin of one arm; then, if
+    it is confounded, collect the separating poses and diagnose both together."""
+    from pimbs_learn.diagnosis.run import diagnose
+
+    t_cpu, t_wall = time.process_time(), time.perf_counter()
+    robot = pop / line["description"]
+    mujoco = line["simulator"] == "mujoco"
+    if kind == "recording":
+        real, cond = pop / line["recording"], conditions(line["truth"])
+        plant = pop / line["plant"] if mujoco else None
+    elif kind == "probe":
+        real, cond, plant = probe(line, pop, twins)
+    else:
+        real, cond = null_twin(line, pop, twins), conditions(line["truth"], effects=False)
+        plant = description_mjcf(line, pop) if mujoco else None
+    truth = list(cond.effects)
+    t_made = time.process_time() - t_cpu
+    reference = reference_of(line, pop, twins, line["seed"])
+    c0 = time.process_time()
+    result, _ = diagnose(real, reference, robot=robot)
+    said = answer(result)
+    want = targets(truth)
+    rec: dict[str, Any] = {
+        "arm": line["arm"], "seed": line["seed"], "kind": kind,
+        "simulator": line["simulator"], "family": line["family"], "dof": line["dof"],
+        "n_muscles": line["n_muscles"], "rows": result["rows"], "truth": truth,
+        "targets": want, "nuisances": nuisances(truth), **said,
+        "outcome": outcome(said, want), "truth_in_either": truth_in_either(said, want),
+        "cpu_s": round(time.process_time() - c0, 2)}
+    if settle and said["either"]:
+        rec["settle"] = settle_one(line, pop, out, kind, result, real, reference, want, cond,
+                                   plant)
+    rec["cpu_s_total"] = round(time.process_time() - t_cpu, 2)
+    rec["cpu_s_twin"] = round(t_made, 2) if kind != "recording" else 0.0
+    rec["wall_s"] = round(time.perf_counter() - t_wall, 2)
+    return rec
+
+
+def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: dict,
+               real: Path, reference: Path, want: list[str], cond, plant: Path | None
+               ) -> dict[str, Any]:
+    """Collect the proposed poses on the same arm (same concealed effects, sensors, plant)
+    and diagnose the first and the new recording together, each with its reference."""
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.poses_file import read_pose_plan
+    from pimbs_learn.diagnosis.design import design_csv
+    from pimbs_learn.diagnosis.run import diagnose
+    from pimbs_recording.format import write_recording
+
+    csv, count = design_csv(result)
+    if not count:
+        return {"poses": 0, "resolved": False, "note": "no poses proposed"}
+    folder = out / "settle"
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = f"{line['arm']}.{kind}"
+    design = folder / f"{stem}.poses.csv"
+    design.write_text(csv)
+    arm = ArmModel.load(pop / line["description"])
+    plan = read_pose_plan(design, arm)  # as `pimbs collect --poses-file` reads it
+    seed = line["seed"] + SETTLE_SEED
+    c0 = time.process_time()
+    data, meta = record(line, pop, cond, plant, seed, plan)
+    real2 = folder / f"{stem}.parquet"
+    write_recording(real2, data, meta)
+    ref2 = reference_of(line, pop, folder, seed, plan, stem)
+    c1 = time.process_time()
+    both, _ = diagnose([real, real2], [reference, ref2], robot=pop / line["description"])
+    said = answer(both)
+    return {"poses": count, "expected_lr": [a["separating_poses"]["expected_likelihood_ratio"]
+                                            for a in result["ambiguous"]
+                                            if a.get("separating_poses")],
+            **said, "outcome": outcome(said, want),
+            "resolved": outcome(said, want) in ("exact", "nothing", "unexplained"),
+            "cpu_s_record": round(c1 - c0, 2), "cpu_s": round(time.process_time() - c1, 2)}
+
+
+# --------------------------------------------------------------------------- summary
+ORDER_EFFECTS = ("exact", "wrong", "missed", "either", "unexplained")
+ORDER_NULLS = ("nothing", "unexplained", "named")
+
+
+def summary(lines: list[dict[str, Any]]) -> str:
+    """Confusion tables per simulator (markdown); the development probes apart."""
+    out = []
+    probes = [r for r in lines if r["kind"] == "probe"]
+    lines = [r for r in lines if r["kind"] != "probe"]
+    for sim in ("ours", "mujoco"):
+        rows = [r for r in lines if r["simulator"] == sim]
+        if not rows:
+            continue
+        title = "PIMBS's simulator" if sim == "ours" else "MuJoCo as the plant"
+        out.append(f"\n### {title} ({len(rows)} recordings)\n")
+        out.append("| recordings with effects | n | " + " | ".join(ORDER_EFFECTS)
+                   + " | truth among the options |")
+        out.append("|---|---|" + "---|" * (len(ORDER_EFFECTS) + 1))
+        for label, keep in (("single effect", lambda r: len(r["targets"]) == 1),
+                            ("two effects", lambda r: len(r["targets"]) >= 2),
+                            ("all", lambda r: len(r["targets"]) >= 1)):
+            group = [r for r in rows if keep(r)]
+            if not group:
+                continue
+            c = Counter(r["outcome"] for r in group)
+            either = [r for r in group if r["outcome"] == "either"]
+            out.append(f"| {label} | {len(group)} | "
+                       + " | ".join(_share(c[k], len(group)) for k in ORDER_EFFECTS)
+                       + f" | {sum(r['truth_in_either'] for r in either)}/{len(either)} |")
+        out.append("\n| recordings without effects | n | " + " | ".join(ORDER_NULLS) + " |")
+        out.append("|---|---|" + "---|" * len(ORDER_NULLS))
+        for label, keep in (("null twins", lambda r: r["kind"] == "null"),
+                            ("population, none concealed",
+                             lambda r: r["kind"] == "recording" and not r["nuisances"]),
+                            ("population, plant nuisances only",
+                             lambda r: r["kind"] == "recording" and r["nuisances"]),
+                            ("all", lambda r: True)):
+            group = [r for r in rows if not r["targets"] and keep(r)]
+            if not group:
+                continue
+            c = Counter(r["outcome"] for r in group)
+            out.append(f"| {label} | {len(group)} | "
+                       + " | ".join(_share(c[k], len(group)) for k in ORDER_NULLS) + " |")
+        conf = [r for r in rows if r.get("settle")]
+        if conf:
+            c = Counter(r["settle"]["outcome"] for r in conf)
+            res = sum(r["settle"]["resolved"] for r in conf)
+            out.append(f"\nconfounded cases: {len(conf)}; resolved by their separating poses "
+                       f"{_share(res, len(conf))} (after: "
+                       + ", ".join(f"{k} {v}" for k, v in sorted(c.items())) + ")")
+        wrong = Counter(n for r in rows for n in r["named"] if n not in r["targets"])
+        if wrong:
+            out.append("effects named wrongly: " + ", ".join(f"{k} {v}"
+                                                          for k, v in wrong.most_common()))
+        cpu = sorted(r["cpu_s"] for r in rows)
+        out.append(f"CPU per diagnosis: median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s;"
+                   f" per recording with twin and settling: "
+                   f"{sum(r['cpu_s_total'] for r in rows) / len(rows):.1f} s on average")
+    if probes:
+        out.append("\n### Development probes: one plant-file change on MuJoCo\n")
+        out.append("| arm | concealed | counts as | named | either | outcome | settled |")
+        out.append("|---|---|---|---|---|---|---|")
+        for r in sorted(probes, key=lambda r: r["arm"]):
+            e = r["truth"][0]
+            out.append(f"| {r['arm']} | {e['name']} {e['magnitude']:g} | "
+                       f"{', '.join(r['targets']) or 'nuisance'} | {', '.join(r['named']) or '–'}"
+                       f" | {' / '.join(' or '.join(x) for x in r['either']) or '–'} | "
+                       f"{r['outcome']} | {r.get('settle', {}).get('outcome', '–')} |")
+    return "\n".join(out)
+
+
+def _share(k: int, n: int) -> str:
+    return f"{k} ({100 * k / n:.0f} %)" if n else "–"
+
+
+def bars(lines: list[dict[str, Any]]) -> str:
+    """The done bar, per simulator."""
+    out = []
+    for sim in ("ours", "mujoco"):
+        rows = [r for r in lines if r["simulator"] == sim and r["kind"] != "probe"]
+        eff = [r for r in rows if r["targets"]]
+        nul = [r for r in rows if not r["targets"]]
+        conf = [r for r in rows if r.get("settle")]
+        if not rows:
+            continue
+        exact = sum(r["outcome"] == "exact" for r in eff)
+        wrong = sum(r["outcome"] == "wrong" for r in eff)
+        named = sum(r["outcome"] == "named" for r in nul)
+        res = sum(r["settle"]["resolved"] for r in conf)
+        out.append(f"{sim}: exact {exact}/{len(eff)} (bar ≥ 90 %), wrong {wrong}/{len(eff)} "
+                   f"(≤ 5 %), nulls naming something {named}/{len(nul)} (≤ 1 in 20), "
+                   f"confounded resolved {res}/{len(conf)} (≥ 80 %)")
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------ main
+def read_lines(path: Path) -> list[dict[str, Any]]:
+    if not path.is_file():
+        return []
+    return [json.loads(s) for s in path.read_text().splitlines() if s.strip()]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--population", type=Path, help="folder with manifest.jsonl")
+    ap.add_argument("--split", choices=sorted(SPLITS))
+    ap.add_argument("--out", type=Path, help="folder for twins, settling sessions, results")
+    ap.add_argument("--twins", type=Path, help="folder of the null twins and references "
+                    "(default OUT/twins; they depend on the population only, so passes may "
+                    "share them)")
+    ap.add_argument("--arms", nargs="*", help="only these arms (armNNN) of the split")
+    ap.add_argument("--kinds", nargs="*", default=["recording", "null"],
+                    choices=["recording", "null", "probe"],
+                    help="probe: on the development split's MuJoCo arms, one plant-file "
+                    "change alone (the population rarely draws them)")
+    ap.add_argument("--no-settle", action="store_true", help="skip the separating poses")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--summary", type=Path, help="print the tables of a results file")
+    a = ap.parse_args()
+    if a.summary:
+        lines = read_lines(a.summary)
+        print(summary(lines))
+        print("\n" + bars(lines))
+        return
+    if not (a.population and a.split and a.out):
+        ap.error("--population, --split and --out are needed (or --summary FILE)")
+    if "probe" in a.kinds and a.split != "dev":
+        ap.error("--kinds probe is for the development split only (--split dev)")
+    pop, out = a.population.resolve(), a.out.resolve()
+    twins = (a.twins or out / "twins").resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    results = out / f"diagnosis-{a.split}.jsonl"
+    manifest = {d["arm"]: d for d in read_lines(pop / "manifest.jsonl")}
+    arms = [manifest[f"arm{s:03d}"] for s in SPLITS[a.split] if f"arm{s:03d}" in manifest]
+    if a.arms:
+        arms = [d for d in arms if d["arm"] in set(a.arms)]
+    done = {(r["arm"], r["kind"]) for r in read_lines(results)}
+    todo = [(d, k) for d in arms for k in a.kinds
+            if (d["arm"], k) not in done and (k == "recording" or (
+                k == "null" and d["truth"]["effects"]) or (
+                k == "probe" and d["simulator"] == "mujoco"))]
+    todo.sort(key=lambda t: t[0]["simulator"] != "mujoco")  # the slow ones first
+    print(f"{len(arms)} arms of the {a.split} split; {len(todo)} recordings to diagnose, "
+          f"{len(done)} already in {results}", flush=True)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
+        futures = {pool.submit(diagnose_one, d, pop, out, twins, k, not a.no_settle): (d, k)
+                   for d, k in todo}
+        for future in as_completed(futures):
+            r = future.result()
+            with results.open("a") as fh:
+                fh.write(json.dumps(r) + "\n")
+            settled = r.get("settle", {})
+            print(f"{r['arm']} {r['kind']:9s} {r['simulator']:6s} want {r['targets'] or '-'} "
+                  f"named {r['named'] or '-'} either {r['either'] or '-'} -> {r['outcome']}"
+                  + (f"; settled: {settled.get('outcome')}" if settled else "")
+                  + f" ({r['cpu_s']:.0f} s CPU)", flush=True)
+    print(f"{len(todo)} recordings in {time.perf_counter() - t0:.0f} s wall")
+    lines = [r for r in read_lines(results) if r["arm"] in {d["arm"] for d in arms}]
+    print(summary(lines))
+    print("\n" + bars(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,110 @@
+"""Does the physics pay on *this* recording? A check from the training rows alone.
+
+Why: the torque balance helps a body schema only where the recorded torques are right. On
+an arm whose loadcells read through friction, or whose gravity model is off, the physics
+term fits slopes to wrong torques, and with 5–30 samples nothing in the training loss says
+so: a large network interpolates wrong torques as easily as right ones. What does say so
+is prediction at poses not trained on. The check asks it of a model that must explain
+lengths and torques together and pays for flexibility — the Gaussian process of
+:mod:`pimbs_learn.noise`, whose evidence the automatic physics weight already uses: leave
+each training sample out in turn and predict its lengths from the other samples, once
+with their torques and once from their lengths alone. Where the torques, as recorded,
+make those predictions better, the physics is kept; otherwise the run falls back to Basic
+(the same structure, schedule and width, no physics terms), which is then exactly what
+``--loss basic`` would have trained.
+
+The Gaussian process is fitted once per run anyway (the torque noise floor), and its
+leave-one-out errors are closed-form, so the check costs no training.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from pimbs_learn.losses import LossConfig
+from pimbs_learn.noise import NoiseEstimate, estimate_noise
+from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult
+
+BASIC = LossConfig(const=False, pinn=False)
+# The physics is kept when the torques lower the pooled leave-one-out length error below
+# this share of the error without them. Chosen on the development half of a population of
+# drawn arms (docs/learning-notebook.md, §9); a tie ("cannot tell") falls back, since a
+# default must not hurt where it cannot tell that the physics helps.
+KEEP_BELOW = 1.0
+
+
+@dataclass(frozen=True)
+class SelfCheck:
+    """Leave-one-sample-out length errors of the training rows, with and without torques."""
+
+    samples: int  # training samples the check used (subsampled beyond the GP's cap)
+    with_torque: float  # pooled squared length error, scaled units
+    without_torque: float
+    torque_noise_rms: float  # N·m, the evidence's torque noise (the physics weight's floor)
+    keep_below: float = KEEP_BELOW
+
+    @property
+    def ratio(self) -> float:
+        return self.with_torque / self.without_torque if self.without_torque > 0 else np.inf
+
+    @property
+    def keeps_physics(self) -> bool:
+        return bool(self.ratio < self.keep_below)
+
+    def line(self, loss: str) -> str:
+        """One line for ``pimbs train``'s output."""
+        verdict = (f"kept ({loss})" if self.keeps_physics
+                   else "not shown to help, so trained without it (basic)")
+        return (f"self-check, each of {self.samples} training samples predicted from the "
+                f"others: the torques change the length error ×{self.ratio:.2f}; physics "
+                f"{verdict}")
+
+    def metrics(self) -> dict:
+        return {"method": "gaussian-process leave-one-sample-out", "samples": self.samples,
+                "with_torque": self.with_torque, "without_torque": self.without_torque,
+                "ratio": self.ratio, "keep_below": self.keep_below,
+                "physics_kept": self.keeps_physics}
+
+    @classmethod
+    def from_estimate(cls, e: NoiseEstimate, keep_below: float = KEEP_BELOW) -> SelfCheck:
+        assert e.loo_with_torque is not None and e.loo_without_torque is not None
+        return cls(samples=len(e.loo_with_torque), with_torque=float(e.loo_with_torque.sum()),
+                   without_torque=float(e.loo_without_torque.sum()),
+                   torque_noise_rms=e.torque_rms, keep_below=keep_below)
+
+
+def applies(run: Run) -> bool:
+    """The check decides for runs with the physics terms and at least three samples."""
+    return run.loss.pinn and run.train.n_samples >= 3 and run.train.has_tau
+
+
+def self_check(run: Run, keep_below: float = KEEP_BELOW) -> SelfCheck | None:
+    """The check on ``run``'s training rows (with a prior: on what the network learns), or
+    None where the sample set is degenerate for the Gaussian process."""
+    t = run.residual().train
+    try:
+        e = estimate_noise(t.theta, t.tension, t.length, t.tau, seed=run.seed)
+    except torch.linalg.LinAlgError:
+        return None
+    return SelfCheck.from_estimate(e, keep_below)
+
+
+def train_checked(run: Run, options: TrainOptions | None = None,
+                  progress: Progress | None = None) -> TrainResult:
+    """Self-check, then train with the loss it chose (the physics terms or Basic)."""
+    from pimbs_learn.train import train
+
+    t0 = time.perf_counter()
+    check = self_check(run) if applies(run) else None
+    if check is None:
+        return train(run, options, progress)
+    final = run if check.keeps_physics else replace(run, loss=BASIC)
+    # the weight's floor is the same evidence: no second fit
+    final = replace(final, torque_noise=check.torque_noise_rms)
+    result = train(final, options, progress)
+    return replace(result, self_check=check, asked_loss=run.loss,
+                   seconds=time.perf_counter() - t0)

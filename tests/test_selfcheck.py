@@ -1,0 +1,88 @@
+"""The self-check keeps the physics where the recorded torques help predict lengths at
+poses left out, and falls back to Basic where they do not; `pimbs train` says which."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from pimbs_cli.main import main
+from pimbs_learn.data import load_samples, split
+from pimbs_learn.losses import LossConfig
+from pimbs_learn.run import Run, TrainOptions
+from pimbs_learn.selfcheck import BASIC, applies, self_check, train_checked
+from pimbs_learn.train import train
+from tests.foreign_arm import record
+
+DEFAULT = LossConfig.parse("basic+const+pinn", 1.0, "auto")
+
+
+@pytest.fixture(scope="module")
+def foreign(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sc") / "foreign.parquet"
+    record(path, 60, 0)
+    return load_samples(path)
+
+
+def _run(samples, n=10, seed=0, loss=DEFAULT):
+    tr, ev = split(samples, n, seed)
+    return Run(tr, ev, loss, seed, True, "series-elastic")
+
+
+def test_torques_that_fit_the_lengths_keep_the_physics(foreign):
+    check = self_check(_run(foreign))
+    assert check is not None and check.samples == 10
+    assert check.keeps_physics and check.ratio < 0.5
+
+
+def test_torques_that_do_not_fit_the_lengths_fall_back(foreign):
+    """The same rows with each sample's torques taken from another sample (every number
+    realistic, none of them right): the torques cannot help, and the check says so."""
+    run = _run(foreign)
+    wrong = replace(run.train, tau=np.roll(run.train.tau, 3, axis=0))
+    check = self_check(replace(run, train=wrong))
+    assert check is not None and not check.keeps_physics and check.ratio >= 1.0
+
+
+def test_a_fallback_trains_exactly_what_basic_trains(foreign):
+    torch.set_num_threads(1)
+    run = _run(foreign)
+    wrong = replace(run, train=replace(run.train, tau=np.roll(run.train.tau, 3, axis=0)))
+    options = TrainOptions(epochs=60, hidden=16, schedule="exp")
+    checked = train_checked(wrong, options)
+    basic = train(replace(wrong, loss=BASIC), options)
+    m = checked.metrics()
+    assert (m["loss"], m["loss_asked"]) == ("basic", "basic+const+pinn")
+    assert m["self_check"]["physics_kept"] is False
+    assert checked.eval_loss == pytest.approx(basic.eval_loss, rel=1e-6)
+
+
+def test_the_check_applies_only_where_it_can_decide(foreign):
+    assert applies(_run(foreign))
+    assert not applies(_run(foreign, loss=LossConfig.parse("basic+const")))
+    assert not applies(_run(foreign, n=2))
+
+
+def test_pimbs_train_says_what_the_check_chose_and_paper_is_one_flag(tmp_path):
+    torch.set_num_threads(1)
+    data = tmp_path / "f.parquet"
+    record(data, 40, 1)
+    args = ["train", str(data), "--n-train", "10", "--epochs", "30", "--threads", "1"]
+    out = CliRunner().invoke(main, [*args, "--json", str(tmp_path / "m.json")])
+    assert out.exit_code == 0, out.output
+    assert "self-check, each of 10 training samples predicted from the others" in out.output
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["self_check"]["physics_kept"] == (metrics["loss"] == "basic+const+pinn")
+    out = CliRunner().invoke(main, [*args, "--no-self-check"])
+    assert out.exit_code == 0 and "self-check" not in out.output
+    out = CliRunner().invoke(main, [*args, "--paper", "--out", str(tmp_path / "paper")])
+    assert out.exit_code == 0, out.output
+    meta = json.loads((tmp_path / "paper" / "model.json").read_text())
+    assert meta["structure"] == "mlp" and meta["architecture"]["layers"][1:3] == [1000, 1000]
+    assert meta["metrics"]["lr_schedule"] == "constant" and meta["metrics"]["alpha"] == 1e-5
+    assert meta["metrics"]["self_check"] is None and "self-check" not in out.output
