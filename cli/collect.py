@@ -1,9 +1,10 @@
 """`pimbs collect`: record a body-schema data set on the arm (or the simulated arm).
 
 A thin shell over ``pimbs_hw.collection``: parse options, connect, run with a live display,
-and always end with a summary. Exit status: 0 complete, 1 stopped by an error (the message
-says what to do), 130 interrupted by Ctrl-C. In every case the file holds every finished
-sample and ``--resume`` continues it.
+and always end with a summary. Exit status: 0 complete, 1 stopped by an error or a run that
+recorded nothing or gave up most of its poses (the message says what to do), 130
+interrupted by Ctrl-C. In every case the file holds every finished sample and ``--resume``
+continues it.
 """
 
 from __future__ import annotations
@@ -118,7 +119,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
     lose at most the sample in progress; --resume continues the same seeded sequence.
     """
-    from pimbs_arm.poses import replaced_note
+    from pimbs_arm.poses import replaced_note, scaled_note
     from pimbs_hw import is_simulated
     from pimbs_hw.collection.move import MoveConfig
     from pimbs_hw.collection.resume import collection_meta, open_recording
@@ -154,8 +155,11 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
                            simulated=simulated, settle=settle.meta(), move=moves.meta())
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
+    if plan.scaled:
+        click.echo(scaled_note(plan.scaled, samples), err=True)
     if plant is not None:
-        _warn_if_ringing(plant, model, settle.timeout)
+        _plant_notes(plant, model, settle.timeout)
+    hold = _relax_note(model, simulated)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     # one writer per recording for the whole run: a second collect (or --resume) on the same
     # file is refused before it reads or writes anything, instead of dropping samples
@@ -166,17 +170,32 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             return
         with _stop_on_signals():
             _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-                 zero_m, note, plant)
+                 zero_m, note, plant, hold)
 
 
-def _warn_if_ringing(plant: Path, model, wait_s: float) -> None:
-    """One line before the arm moves when the plant arm rings longer than a pose may settle
-    (and a plant that does not fit the description is refused here, before connecting)."""
-    from pimbs_hw.mock.mujoco_plant import ringing
+def _plant_notes(plant: Path, model, wait_s: float) -> None:
+    """Before the arm moves: one line when the plant arm rings longer than a pose may settle,
+    one when it must be integrated with a finer timestep than its file's (and a plant that
+    does not fit the description is refused here, before connecting)."""
+    from pimbs_hw.mock.mujoco_plant import plant_notes
 
-    note = ringing(plant, model.robot).note(plant, model.joints, wait_s)
-    if note:
+    for note in plant_notes(plant, model.robot, wait_s):
         click.echo(note, err=True)
+
+
+def _relax_note(model, simulated: bool) -> bool:
+    """Whether relaxing would let the arm fall out of its routed range: then one line says so
+    before the arm is touched, and the collection holds the arm instead (True)."""
+    from pimbs_hw.collection.relax import relax_fall
+
+    fall = relax_fall(model)
+    if fall is None:
+        return False
+    arm = "the simulated arm" if simulated else "the arm"
+    click.echo(f"note: {fall}; the collection holds {arm} at its motors' lengths instead of "
+               "relaxing it when it connects and between poses. The boards still relax it when "
+               "the collection ends or stops: support it then", err=True)
+    return True
 
 
 def _plan(model, samples: int, seed: int, map_kind: str, schema_dir: Path | None):
@@ -224,26 +243,27 @@ def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, st
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-         zero_m=None, note=None, plant=None) -> None:
+         zero_m=None, note=None, plant=None, hold=False) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
     from pimbs_hw.collection.progress import LiveReporter, LogReporter, summary_lines
     from pimbs_hw.collection.routine import Collector
-    from pimbs_hw.collection.session import open_link, stop_advice
+    from pimbs_hw.collection.session import open_link, simulation_cause, stop_advice
     from pimbs_hw.safety import SafetyStop
     from pimbs_recording.format import RecordingWriteError
 
     console = Console(stderr=True)
-    collector = None
+    collector = link = None
     error: str | None = None  # the full message: what happened and what to do
     reason: str | None = None  # what happened, for the summary
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
-                       speed=moves.speed, zero_m=zero_m, plant=plant) as link:
+                       speed=moves.speed, zero_m=zero_m, plant=plant, hold=hold) as link:
             if note:
                 console.print(note)
-            collector = Collector(link, model, plan, writer, start, settle, move=moves)
+            collector = Collector(link, model, plan, writer, start, settle, move=moves,
+                                  relax_safe=not hold)
             if start:
                 console.print(f"resuming {writer.path} at sample {start} of {plan.n_samples}")
             # a live panel on a terminal; plain lines in a log, so a killed run shows progress
@@ -255,6 +275,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
         if collector is not None:
             collector.summary.stopped = "interrupted (Ctrl-C); the arm was relaxed"
     except SafetyStop as stop:
+        stop = simulation_cause(stop, link)
         sample = collector.summary.next_sample if collector is not None else None
         reason, error = str(stop), stop_advice(stop, plan, sample)
     except RecordingWriteError as exc:
@@ -268,5 +289,11 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
             click.echo(line)
     if error:
         raise click.ClickException(error)
+    if collector is not None and collector.summary.failed:
+        raise click.ClickException(
+            f"{collector.summary.failed}: the arm did not stay at the poses the description "
+            f"plans (the warnings above say why each was given up). Check the description "
+            f"against the arm with `pimbs robot {model.robot.muscle_path}`, or collect with "
+            "--map al (lower tensions)")
     if collector is None or not collector.summary.complete:
         sys.exit(130)  # SystemExit: not turned into an error message by user_errors

@@ -109,12 +109,10 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
     if plant is not None:
         from pimbs_hw.collection.settle import SettleConfig
-        from pimbs_hw.mock.mujoco_plant import ringing
+        from pimbs_hw.mock.mujoco_plant import plant_notes
 
         click.echo(f"the true arm: {plant}, integrated by MuJoCo")
-        note = ringing(plant, description).note(plant, description.joints,
-                                                SettleConfig().timeout)
-        if note:
+        for note in plant_notes(plant, description, SettleConfig().timeout):
             click.echo(note, err=True)
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:

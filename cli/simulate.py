@@ -48,7 +48,7 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
             conceal: tuple[str, ...], noise: float, poses_file: Path | None,
             force: bool) -> None:
     """Simulate a body-schema recording of the robot (θ uniform in its joint range)."""
-    from pimbs_arm.poses import replaced_note
+    from pimbs_arm.poses import replaced_note, scaled_note
     from pimbs_recording.format import RecordingWriteError, write_recording
     from pimbs_sim.effects import parse_effect
     from pimbs_sim.simulate import simulate
@@ -74,6 +74,8 @@ def command(robot: str, samples: int, map_kind: str, seed: int, out: Path,
                                    "again") from exc
     if meta["replaced_poses"]:
         click.echo(replaced_note(meta["replaced_poses"], samples, seed), err=True)
+    if meta["scaled_floors"]:
+        click.echo(scaled_note(meta["scaled_floors"], samples), err=True)
     click.echo(f"wrote {out}: {samples} samples of {arm.robot.name} "
                f"({arm.n_joints} joints, {arm.n_muscles} muscles, {map_kind.upper()}-Map, "
                f"seed {seed})")

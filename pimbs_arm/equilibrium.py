@@ -37,6 +37,7 @@ class Equilibrium:
 
 
 _EXP_CAP = 60.0  # cap K*dn so far-off trial points give a huge but finite energy
+TENSION_SCALE_CAP = 10.0  # of f_max: the largest tension the convergence tolerance scales with
 
 
 @dataclass
@@ -136,7 +137,11 @@ def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: in
     for _ in range(max_iter):
         theta, grad = state.theta, state.grad
         free = ~(((theta <= lo) & (grad > 0)) | ((theta >= hi) & (grad < 0)))
-        scale = np.linalg.norm(state.g) + np.abs(state.G).T @ np.abs(state.f)
+        # the torques' own size sets the tolerance, but no more than wires at ten times
+        # their f_max carry: a wire at 1e15 N (a joint pulled into its limit) must not make
+        # a residual of hundreds of N·m count as converged
+        scale = np.linalg.norm(state.g) + np.abs(state.G).T @ np.minimum(
+            np.abs(state.f), TENSION_SCALE_CAP * arm.f_max)
         if np.linalg.norm(grad[free]) <= atol + 1e-11 * np.max(scale):
             converged = True
             break

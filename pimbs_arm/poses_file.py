@@ -65,8 +65,8 @@ def read_pose_plan(path: Path, arm: ArmModel, seed: int = 0, map_kind: str = "at
         if not feasible(arm, poses[i], floors[i]):
             raise PoseFileError(
                 f"{path}: row {i + 1}: the muscles of {arm.robot.name} cannot hold this pose "
-                f"with floors {np.round(floors[i], 1).tolist()} N within {PLAN_CEILING:g}*f_max;"
-                " lower its floors or drop the row")
+                f"with floors {np.round(floors[i], 1).tolist()} N within {PLAN_CEILING:g}*f_max"
+                " (or the arm would not stay there); lower its floors or drop the row")
     return PosePlan(poses=poses, floors=floors, drawn_floors=drawn, replaced=())
 
 

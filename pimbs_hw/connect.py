@@ -75,7 +75,7 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
              faults: Sequence[str] | str | None = None, effect=None, seed: int = 0,
              speed: float = 1.0, limits: SafetyLimits | None = None,
              connect_timeout_s: float | None = None, zero_m=None,
-             mock_options: dict | None = None
+             mock_options: dict | None = None, hold_at_start: bool = False
              ) -> Iterator[tuple[ArmDriver, MockArm | None]]:
     """Driver for the arm on ``port``; starts the simulated arm for simulated ports.
 
@@ -83,7 +83,8 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
     ``mock_options``: extra ``MockArm`` arguments (e.g. ``encoder_offset_m``).
     ``limits``: default ``SafetyLimits()``, or ``SIMULATED_LIMITS`` where the boards are
     simulated in this process. ``connect_timeout_s``: how long the boards have to answer
-    (default: 1 s, 5 s simulated).
+    (default: 1 s, 5 s simulated). ``hold_at_start``: the motors hold their lengths once the
+    boards are configured, instead of relaxing (an arm that would fall when relaxed).
     """
     if isinstance(robot, str | Path):
         from pimbs_calibration.description import load_robot
@@ -110,7 +111,8 @@ def open_arm(port: str = "virtual", robot="two-link-4-muscle", *,
     try:
         transport = open_transport(port, **transport_kwargs)
         try:
-            driver = ArmDriver(transport, robot, limits, connect_timeout_s=connect_timeout_s)
+            driver = ArmDriver(transport, robot, limits, connect_timeout_s=connect_timeout_s,
+                               hold_at_start=hold_at_start)
         except BaseException:
             transport.close()
             raise

@@ -201,7 +201,8 @@ class ArmDriver:
 
     def __init__(self, transport: Transport, robot, limits: SafetyLimits | None = None, *,
                  connect_timeout_s: float = 1.0,
-                 protocols: Sequence[BoardProtocol] | None = None) -> None:
+                 protocols: Sequence[BoardProtocol] | None = None,
+                 hold_at_start: bool = False) -> None:
         from pimbs_hw.protocol.profiles import protocols_for
 
         self.transport, self.robot = transport, robot
@@ -233,7 +234,7 @@ class ArmDriver:
         self.tripped: SafetyStop | None = None
         self.closed = False
         self.host_lag = host_lag()  # when this process could not run (see ``_silence``)
-        self._configure(connect_timeout_s)
+        self._configure(connect_timeout_s, hold_at_start)
 
     def protocol_of(self, i: int) -> BoardProtocol:
         return self._proto[i]  # type: ignore[return-value]
@@ -261,8 +262,10 @@ class ArmDriver:
         rx = self._rx[i]
         return self._proto[i].state_text(rx.state, rx.error_code)  # type: ignore[union-attr]
 
-    def _configure(self, timeout_s: float) -> None:
-        """Send limits, wait for every board to answer configured, then relax (safe start)."""
+    def _configure(self, timeout_s: float, hold: bool = False) -> None:
+        """Send limits, wait for every board to answer configured, then relax (safe start),
+        or with ``hold`` let every motor hold its length (an arm that relaxed would fall out
+        of the range its wires are routed for)."""
         for proto in self.protocols:
             try:
                 proto.connect(self.transport, [self._board_limits(i) for i in proto.indices])
@@ -299,7 +302,10 @@ class ArmDriver:
                 stop = BoardSilent(f"no configured status within {timeout_s:.1f} s from "
                                    f"{names}; {hint}", **self._where(missing[0]))
             self._trip(stop)
-        self.relax()
+        if hold:
+            self.stop()
+        else:
+            self.relax()
         # wait for the answers to that relax: faults latched in an earlier session (a host
         # that crashed) are cleared by it, and must not be read back from older frames
         for rx in self._rx:

@@ -108,7 +108,7 @@ def simulate(arm: ArmModel, n_samples: int, map_kind: str = "atl", seed: int = 0
                      f_min=[0.0, 0.0] if map_kind == "al" else list(atl_floor_range(arm)),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(),
                      noise=noise, theta_source="simulation",
-                     replaced_poses=list(plan.replaced),
+                     replaced_poses=list(plan.replaced), scaled_floors=list(plan.scaled),
                      # the simulated loadcells were zeroed (read right) at T_REF
                      loadcell_zero_temperature_C=T_REF)
     return data, meta

@@ -130,6 +130,42 @@ def test_complete_collection_is_valid_and_obeys_the_statics(arm, tmp_path):
     assert res.exit_code == 1 and "--resume" in res.output
 
 
+def test_the_quasi_static_arm_is_not_waited_for_where_it_cannot_swing(arm, tmp_path,
+                                                                       monkeypatch):
+    """Before each move a swinging arm must come to rest; the built-in quasi-static arm says
+    it is at rest once its equilibrium is solved (it never overshoots it), so the routine
+    judges rest from readings only before arming the pose watch, once a sample, and its held
+    wires load at the length rate (still in steps of a tension command's size). A MuJoCo
+    plant, like a real arm, says nothing and gets the readings' rest check every time."""
+    import pimbs_hw.collection.routine as routine
+    from pimbs_hw.collection.move import MoveConfig
+    from pimbs_hw.collection.resume import collection_meta, open_recording
+    from pimbs_hw.collection.session import open_link
+
+    rests = []
+    real = routine.hold_until_settled
+
+    def counting(link, mode, command, config, *args, **kwargs):
+        rests.append(np.isinf(np.atleast_1d(config.tension_tol)).all())
+        return real(link, mode, command, config, *args, **kwargs)
+
+    monkeypatch.setattr(routine, "hold_until_settled", counting)
+    plan, settle, moves = CollectionPlan(arm, 3, seed=4), SettleConfig(window=0.06), \
+        MoveConfig(speed=20)
+    meta = collection_meta(arm, plan.meta(), port="virtual", simulated=True,
+                           settle=settle.meta(), move=moves.meta())
+    writer, start = open_recording(tmp_path / "q.parquet", meta, resume=False)
+    with open_link("virtual", arm.robot, speed=20) as link:
+        assert link.quasi_static and link.at_rest() in (True, False)
+        collector = routine.Collector(link, arm, plan, writer, start, settle, move=moves)
+        assert collector.move.quasi_static
+        assert collector.run().written == 3
+    assert sum(rests) == 3  # the move's end of each sample, nothing after the unloading
+    with open_link("virtual", arm.robot, speed=20,
+                   conceal=["tendon_friction:0.1"]) as link:  # friction couples the loops
+        assert not link.quasi_static and link.at_rest() is None
+
+
 def test_arm_without_joint_encoders_records_the_model_estimate(tmp_path):
     arm5 = ArmModel.load("left-arm-5dof")
     out = tmp_path / "5.parquet"

@@ -240,6 +240,7 @@ class _StandInModel:
     """Trivial plant: the equilibrium is the command itself (lengths and tensions as given)."""
 
     n_muscles, n_joints = 2, 1
+    joint_limits = np.array([[-1.0, 1.0]])  # the power-up pose θ = 0 lies within them
 
     def equilibrium(self, mode, command, theta0=None):
         from types import SimpleNamespace
@@ -248,7 +249,8 @@ class _StandInModel:
         is_length = np.array(mode) == "length"
         return SimpleNamespace(theta=np.array([command.sum()]),
                                tension=np.where(is_length, 0.0, command),
-                               length=np.where(is_length, command, 0.0))
+                               length=np.where(is_length, command, 0.0),
+                               converged=True, residual=0.0)
 
 
 def test_plant_settles_first_order_with_speed_factor():

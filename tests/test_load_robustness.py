@@ -8,6 +8,7 @@ force, and a ramp that fell behind is re-timed instead of sent in a burst.
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -103,3 +104,76 @@ def test_a_stalled_ramp_is_retimed_not_sent_in_a_burst(monkeypatch):
     assert len(sent) == 11
     assert gaps.min() >= 0.1 - 1e-9, gaps  # never two commands closer than the schedule
     assert gaps.max() == pytest.approx(0.5)  # the stall itself, and nothing squeezed after it
+
+
+def test_a_tick_that_ran_late_is_followed_by_every_frame_that_came_meanwhile():
+    """The simulated boards act on every frame that reached them before the next tick starts,
+    however late the last tick ran: acting on one frame per late tick (a loaded machine)
+    left a growing backlog, and the arm followed commands seconds old into the ceiling."""
+    from types import SimpleNamespace
+
+    from pimbs_hw.mock.arm import MockArm
+
+    queue: list[SimpleNamespace] = []
+    handled: list[SimpleNamespace] = []
+    seen_at_tick: list[tuple[int, int]] = []  # (frames handled, frames sent) at each tick
+    sent = [0]
+    stop = threading.Event()
+
+    class Transport:
+        def recv(self, timeout: float):
+            if queue:
+                return queue.pop(0)
+            stop.wait(min(timeout, 0.005))
+            return None
+
+    def tick(now: float) -> None:
+        seen_at_tick.append((len(handled), sent[0]))
+        if len(seen_at_tick) == 6:
+            stop.set()
+            return
+        for _ in range(4):  # one host cycle's frames reach the boards during this tick
+            sent[0] += 1
+            queue.append(SimpleNamespace(timestamp=time.monotonic()))
+        time.sleep(0.03)  # the tick runs three periods late
+
+    arm = MockArm.__new__(MockArm)
+    arm.transport, arm.tick_s, arm._stop, arm._commanded = Transport(), 0.01, stop, False
+    arm._on_frame, arm._tick, arm._clock = handled.append, tick, time.monotonic
+    runner = threading.Thread(target=arm._run, daemon=True)
+    runner.start()
+    runner.join(30.0)
+    assert not runner.is_alive() and len(seen_at_tick) == 6
+    for handled_then, sent_then in seen_at_tick:
+        assert handled_then == sent_then, seen_at_tick
+
+
+def test_a_relax_not_yet_followed_is_not_taken_for_rest():
+    """Before a move the arm must be at rest; a relax the boards have not begun to follow yet
+    (boards or a simulated arm behind, as on a loaded machine) reads as still as one at rest,
+    and the move planned from there started where the arm was about to leave."""
+    from pimbs_hw.collection.routine import Collector
+    from pimbs_hw.collection.settle import SettleConfig
+
+    floor = np.full(2, 10.0)
+    reads = [0]
+
+    class Link:
+        def command(self, mode, values) -> None:
+            pass
+
+        def read(self) -> Reading:
+            reads[0] += 1
+            tension = floor if reads[0] > 40 else np.zeros(2)  # the boards follow late
+            z = np.zeros(2)
+            return Reading(z, tension, z)
+
+        def at_rest(self) -> None:
+            return None  # judged from the readings, as on a real arm
+
+    collector = Collector.__new__(Collector)
+    collector.link, collector.settle = Link(), SettleConfig(window=0.02, timeout=60.0)
+    collector.model = type("Model", (), {"muscles": ("a", "b")})()
+    rested = collector._rest("relax", floor)
+    assert rested.settled and reads[0] > 40
+    np.testing.assert_allclose(rested.reading.tension, floor)

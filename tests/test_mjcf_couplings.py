@@ -279,6 +279,33 @@ def test_the_mujoco_plant_moves_the_followers_with_their_leaders(coupled):
         assert d.qpos[q[name]] == pytest.approx(c.value(d.qpos[q[c.leader]]), abs=1e-4)
 
 
+def test_a_coupled_plant_powers_up_within_its_limits_followers_coupled(coupled, tmp_path):
+    """An arm whose zero pose lies outside a joint's limits powers up at the nearest pose
+    within them, and the followers of that joint start where their couplings put them there
+    (not where θ = 0 would): MuJoCo's equality then has nothing to yank on the first step.
+    The timestep check sweeps the same coupled arm."""
+    from pimbs_hw.mock.mujoco_plant import MujocoPlant, timestep
+
+    xml = tmp_path / "coupled_elbow_bent.xml"
+    bent = COUPLED.replace('range="-0.7 0.5" ref="-0.05"', 'range="0.2 0.5" ref="-0.05"')
+    assert bent != COUPLED
+    xml.write_text(bent)
+    arm = ArmModel(load_robot(xml), check=False)
+    plant = MujocoPlant(xml, arm, settle_s=0.0)
+    m, d = plant.mj, plant.data
+    q = {m.joint(i).name: int(m.jnt_qposadr[i]) for i in range(m.njnt)}
+    assert d.qpos[q["elbow"]] == pytest.approx(0.2, abs=1e-12)
+    couplings = {c.follower: c for c in arm.robot.couplings}
+    for name in FOLLOWERS:
+        c = couplings[name]
+        assert d.qpos[q[name]] == pytest.approx(c.value(d.qpos[q[c.leader]]), abs=1e-12)
+    assert abs(d.qpos[q["radius"]] - couplings["radius"].value(0.0)) > 0.05  # it moved
+    step = timestep(xml, arm.robot)
+    assert 0 < step.omega < np.inf and step.step_s <= step.file_s
+    plant.step(0.05)
+    assert plant.failure is None
+
+
 # Tendons 1 and 3 unnamed, a named tendon called "tendon1" (what MuJoCo's viewer would call
 # tendon 1): the generated names must not take it.
 UNNAMED = """

@@ -4,6 +4,7 @@ does not fit it, and the boards reporting what the integrated arm does."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -272,3 +273,91 @@ def test_collect_settles_on_a_plant_with_tendon_friction(tmp_path):
     assert res.exit_code == 0, res.output
     rec = read_recording(out)
     assert rec.n_rows == 3 and rec.array("settled").all()
+
+
+def test_a_plant_too_coarse_for_its_wires_is_stepped_finer_and_says_so(tmp_path):
+    """The series elastic elements PIMBS adds stiffen with load (K(f + 1) N/m): at f_max they
+    swing the light swing arm faster than its file's 10 ms step can follow. The plant says
+    which step it needs before the arm moves, and integrates with it."""
+    from pimbs_hw.mock.mujoco_plant import timestep
+
+    xml = tmp_path / "coarse.xml"
+    xml.write_text(SWING.format(damping=0.2).replace('timestep="0.0005"', 'timestep="0.01"'))
+    arm = ArmModel.load(xml)
+    step = timestep(xml, arm.robot)
+    assert step.needed_s < step.file_s == 0.01 and step.step_s <= step.needed_s
+    assert step.omega * step.file_s > 2.0  # the file's step is past the stability limit
+    note = step.note(xml)
+    assert str(xml) in note and "\n" not in note and f"{step.step_s * 1e3:.3g} ms" in note
+    plant = MujocoPlant(xml, arm)
+    assert plant.mj.opt.timestep == pytest.approx(step.step_s)
+    assert plant.at_rest() is None  # as on a real arm, the host judges rest from readings
+    f = arm.tension_distribution(np.array([0.2]), 0.8 * arm.f_max[0])
+    plant.command(("length",) * 2, arm.length(np.array([0.2]), f))
+    _settle(plant)
+    assert plant.failure is None  # the joint's own spring, which the description lacks,
+    np.testing.assert_allclose(plant.state.theta, [0.2], atol=0.02)  # moves it a little
+
+
+def test_a_simulation_that_blows_up_says_so_in_one_line(tmp_path, capfd):
+    """Stepped coarser than its wires allow, the plant blows up: MuJoCo's own warning is not
+    printed, the state before the step is kept, and the collection's stop says the simulated
+    arm went unstable and why, not that a loadcell is miswired."""
+    from pimbs_hw.collection.link import DriverLink, SimulatedArmFailed
+    from pimbs_hw.collection.session import stop_advice
+
+    xml = _swing(tmp_path, 0.2)
+    arm = ArmModel.load(xml)
+    plant = MujocoPlant(xml, arm)
+    plant.mj.opt.timestep = 0.02  # what a file written for muscle actuators might say
+    plant._gains()
+    f = arm.tension_distribution(np.array([0.2]), 0.9 * arm.f_max[0])
+    plant.command(("length",) * 2, arm.length(np.array([0.2]), f))
+    for _ in range(50):
+        plant.step(0.05)
+    assert plant.failure is not None and "went unstable" in plant.failure
+    assert "20 ms step" in plant.failure and "timestep" in plant.failure
+    assert np.isfinite(plant.state.theta).all() and np.isfinite(plant.state.tension).all()
+    assert "Nan, Inf or huge value" not in capfd.readouterr().err
+
+    class Mock:  # what DriverLink asks of the simulated arm behind the boards
+        def failure(self):
+            return plant.failure
+
+    class Driver:
+        class transport:
+            port = "virtual:test"
+
+    with pytest.raises(SimulatedArmFailed) as stop:
+        DriverLink(Driver(), Mock()).read()
+    advice = stop_advice(stop.value)
+    assert "went unstable" in advice and "wiring" not in advice and "\n" not in advice
+
+
+def test_a_static_solve_that_did_not_converge_is_no_rest_position():
+    """The quasi-static arm keeps moving toward the last rest position it found and reports
+    a solve that did not converge (wires at 1e15 N against a joint limit) as its failure."""
+    from types import SimpleNamespace
+
+    from pimbs_hw.mock.plant import Plant
+
+    arm = ArmModel.load("two-link-4-muscle")
+    theta = np.array([0.3, -0.2])
+    eq = arm.equilibrium("length", arm.h_geom(theta) - 0.035, theta0=theta)
+    assert not eq.converged and eq.tension.max() > 1e12  # not a result
+    plant = Plant(arm)
+    try:
+        why = plant._solver._failure(eq)
+        assert why is not None and "no rest position" in why and "No board or wire" in why
+        assert plant._solver._failure(SimpleNamespace(converged=True, tension=np.ones(4),
+                                                      residual=0.0)) is None
+        plant.command(("length",) * 4, arm.h_geom(theta) - 0.035)
+        for _ in range(1000):  # the solver thread takes its time on a loaded machine
+            plant.step(0.01)
+            if plant.failure:
+                break
+            time.sleep(0.01)
+        assert plant.failure is not None
+        assert plant.state.tension.max() < arm.f_max.max()  # it never took the absurd state
+    finally:
+        plant.close()

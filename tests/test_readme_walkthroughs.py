@@ -61,9 +61,9 @@ BLOCKS = (
     Block(f"pimbs simulate --robot {ACME} --samples 200", True,
           "the collection on 32 of the 200 poses (diagnose needs 30 paired samples)",
           rewrite=(("--samples 200 --seed 1 \\\n", "--samples 32 --seed 1 \\\n"),),
-          quotes=tuple((q, q) for q in ("14 of 200 drawn poses need tensions beyond 0.9*f_max and "
-                                   "were replaced by feasible draws from seed 1 (samples "
-                                   "50, 61, 66, ",))),
+          quotes=tuple((q, q) for q in ("14 of 200 drawn poses need tensions beyond 0.9*f_max "
+                                   "(or the arm would not stay there) and were replaced by "
+                                   "feasible draws from seed 1 (samples 50, 61, 66, ",))),
     Block("python -m pimbs_import.synthetic lab.bag --poses 60", True,
           "training for a few epochs", rewrite=(("--epochs 2000", "--epochs 3"),),
           quotes=(("The demo log (60 held poses) imports to 60 rows",

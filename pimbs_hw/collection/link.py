@@ -13,6 +13,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from pimbs_hw.safety import SafetyStop
 from pimbs_recording.approach import ApproachTracker
 
 
@@ -42,6 +43,11 @@ class ArmLink(Protocol):
         """Told before each sample (the mock uses it to trigger ``@SAMPLE`` faults)."""
 
 
+class SimulatedArmFailed(SafetyStop):
+    """The simulated arm itself failed (a MuJoCo step blew up, a static solve found no rest
+    position): nothing on a real arm, its wiring or its boards is to blame."""
+
+
 class DriverLink:
     """``ArmLink`` over ``pimbs_hw.ArmDriver`` (and the ``MockArm`` behind it, if simulated)."""
 
@@ -52,8 +58,27 @@ class DriverLink:
         self.driver.command(mode, values)
 
     def read(self) -> Reading:
+        """The boards' readings; ``SimulatedArmFailed`` once the simulated arm has failed
+        (its readings then describe no arm)."""
+        self.check_simulation()
         s = self.driver.read_state()
         return Reading(s.length, s.tension, s.temperature, s.theta)
+
+    def check_simulation(self) -> None:
+        """Raise ``SimulatedArmFailed`` if the simulated arm behind the boards failed."""
+        failure = None if self.mock is None else self.mock.failure()
+        if failure is not None:
+            raise SimulatedArmFailed(failure, port=self.driver.transport.port)
+
+    def at_rest(self) -> bool | None:
+        """Whether the arm is at rest where the simulated arm knows it (None: judge it from
+        the readings, as on a real arm)."""
+        return None if self.mock is None else self.mock.at_rest()
+
+    @property
+    def quasi_static(self) -> bool:
+        """The arm is the built-in quasi-static simulated one: it has no inertia to ring."""
+        return self.mock is not None and self.mock.quasi_static
 
     def relax(self) -> None:
         self.driver.relax()
@@ -92,6 +117,13 @@ class ApproachLink:
 
     def begin_sample(self, index: int) -> None:
         self.link.begin_sample(index)
+
+    def at_rest(self) -> bool | None:
+        return getattr(self.link, "at_rest", lambda: None)()
+
+    @property
+    def quasi_static(self) -> bool:
+        return getattr(self.link, "quasi_static", False)
 
 
 class Overload(Exception):

@@ -7,13 +7,14 @@ reproduces this as a saturated loadcell). So we never step. Modes are switched o
 new command equals what the muscle is doing now, wires are loaded only while the pose is held,
 and commands are ramped in small increments at a limited rate:
 
-* ``release``: at the old pose, held muscles ramp to their low-pretension length and the others
-  to the pretension (what the slack removal did, undone), so the move happens at low tension
-  where a millimetre of mismatch costs little;
+* ``release``: at the old pose, held muscles ramp to their approach length and the others to
+  the approach tension (what the slack removal did, undone), so the move happens at low
+  tension where a millimetre of mismatch costs little;
 * ``move``: all muscles length-controlled along the straight joint-space path from the current
-  pose to the target at the pretension; the model's error at the start (measured minus
-  modelled lengths) is blended out along the way, so the first command is where the arm is;
-* ``take_up_slack``: held muscles ramp from the pretension length to the QP length, the others
+  pose to the target, at tensions that balance each pose on the way; the model's error at the
+  start (measured minus modelled lengths) is blended out along the way, so the first command
+  is where the arm is;
+* ``take_up_slack``: held muscles ramp from the approach length to the QP length, the others
   from their current tension to the QP tension: first past them (the overshoot of
   ``plan.Target``), then back, so every muscle's last motion has a known direction.
 """
@@ -21,13 +22,16 @@ and commands are ramped in small increments at a limited rate:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pimbs_arm.model import ArmModel
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.link import ArmLink, Reading
 from pimbs_hw.collection.plan import Target
+
+MOVE_KNOTS = 8  # poses along a move whose balancing tensions are solved (linear between)
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,12 @@ class MoveConfig:
     Tension increments and rates are shares of each muscle's f_max (25 N and 1000 N/s for a
     600 N muscle): the ringing a load step excites in an arm grows with the step, and the
     room between the plan's tensions and the boards' ceiling is a share of f_max too.
+
+    ``quasi_static``: the arm has no inertia and no friction in its tension loops (the
+    built-in simulated arm, which follows each equilibrium without swinging and takes each
+    cycle's commands together): a held wire's length steps are still spaced evenly in tension,
+    but as many and as fast as its length change needs, not a tension command's, as nothing
+    rings and no board lags another.
     """
 
     length_step: float = 1e-3             # m per command cycle
@@ -44,6 +54,7 @@ class MoveConfig:
     length_rate: float = 0.05             # m/s
     tension_rate_of_f_max: float = 5 / 3  # of f_max per second
     speed: float = 1.0                    # time speed-up of a simulated arm: rates scale with it
+    quasi_static: bool = False            # the arm cannot ring (see above)
 
     def meta(self) -> dict:
         return asdict(self)
@@ -61,13 +72,14 @@ class Ramp:
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
           f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
-    to go through, limited like a tension command's (the steps and the rate)."""
+    to go through, limited like a tension command's (the steps and the rate) unless the arm
+    is quasi-static (``MoveConfig.quasi_static``)."""
     tension_step = cfg.tension_step_of_f_max * f_max
     tension_rate = cfg.tension_rate_of_f_max * f_max * cfg.speed
     delta = np.abs(end - start)
     steps = delta / np.where(is_length, cfg.length_step, tension_step)
     seconds = delta / np.where(is_length, cfg.length_rate * cfg.speed, tension_rate)
-    if tension_span is not None:
+    if tension_span is not None and not cfg.quasi_static:
         steps = np.maximum(steps, tension_span / tension_step)
         seconds = np.maximum(seconds, tension_span / tension_rate)
     n = max(1, int(np.ceil(np.max(steps))))
@@ -116,20 +128,43 @@ def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) ->
 
 
 def _pretension(model: ArmModel, target: Target) -> np.ndarray:
-    """The low tension the approach lengths were computed for."""
+    """The approach tensions the approach lengths were computed for."""
     return model.tension_from_stretch(model.h_geom(target.theta) - target.approach_length)
 
 
 def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
-         cfg: MoveConfig) -> Ramp:
-    """Length commands from where the arm is to ``target.approach_length``."""
+         cfg: MoveConfig, balance: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+         ) -> Ramp:
+    """Length commands from where the arm is to ``target.approach_length``.
+
+    ``balance(θ, floor)``: the lowest tensions of at least ``floor`` that hold θ. With it,
+    the tensions the lengths are computed for hold each pose the path passes (solved at
+    ``MOVE_KNOTS`` poses with floors blended from the start's tensions to the approach's,
+    linear between them); the start's own imbalance (measured tensions) is blended out.
+    Without it (or where a pose on the way cannot be held), the start and end tensions
+    blend linearly. Lengths at unbalanced tensions put the arm where those tensions balance
+    instead, and on an arm with a soft direction (the two proximal joints of MyoSuite's
+    finger) that was far enough off the path for the arm to end beside the target's
+    approach, in another rest position of the same lengths.
+    """
     f_now = np.maximum(now.tension, 0.0)
     f_end = _pretension(model, target)
     start_error = now.length - model.length(theta_now, f_now)
+    knots = np.linspace(0.0, 1.0, MOVE_KNOTS + 1)
+    along = np.outer(1.0 - knots, f_now) + np.outer(knots, f_end)  # (knots, M)
+    if balance is not None:
+        try:
+            held = np.array([balance(theta_now + s * (target.theta - theta_now), floor)
+                             for s, floor in zip(knots, along, strict=True)])
+        except InfeasiblePoseError:
+            pass
+        else:
+            along = held + np.outer(1.0 - knots, f_now - held[0])
 
     def path(s: float) -> np.ndarray:
         theta = theta_now + s * (target.theta - theta_now)
-        return model.length(theta, f_now + s * (f_end - f_now)) + (1.0 - s) * start_error
+        f = np.array([np.interp(s, knots, column) for column in along.T])
+        return model.length(theta, f) + (1.0 - s) * start_error
 
     return _ramp("length", now.length, target.approach_length,
                  np.ones(model.n_muscles, bool), cfg, model.f_max, path)

@@ -27,8 +27,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pimbs_arm.model import ArmModel
-from pimbs_arm.poses import MAPS, PosePlan, atl_floor_range, hold_ceiling, plan_poses
+from pimbs_arm.holding import Holding, plan_holding
+from pimbs_arm.model import ArmModel, InfeasiblePoseError
+from pimbs_arm.poses import (
+    MAPS,
+    PosePlan,
+    atl_floor_range,
+    hold_ceiling,
+    plan_poses,
+    unstable_message,
+)
 from pimbs_recording.approach import BAND_M
 
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
@@ -42,7 +50,8 @@ class Target:
     """The commands for one sample.
 
     ``approach_length``: every muscle length-controlled at the geometric length minus the
-    stretch of a low pretension (moves the arm to the pose; some wires may be slack).
+    stretch of the lowest tensions that hold the pose (``CollectionPlan.approach_tension``:
+    the AL-Map's QP with each floor at the pretension); it moves the arm to the pose.
     ``hold_mode``/``hold_command``: slack removal. ``held`` muscles (loaded ones whose
     Jacobian rows span the joints well) keep a length that gives their QP tension at the pose, the
     others are tension-controlled at their QP tension: the pose stays fixed by the held
@@ -77,6 +86,7 @@ class CollectionPlan:
         # chosen poses (a poses file) or the seeded sequence
         poses = plan_poses(model, n_samples, seed, map_kind) if poses is None else poses
         self.poses, self.f_min, self.replaced = poses.poses, poses.floors, poses.replaced
+        self.scaled = poses.scaled
         self.ceiling = hold_ceiling(model)
         self.floor = floor
         self.directions = np.random.default_rng([seed, 2]).choice(
@@ -86,15 +96,38 @@ class CollectionPlan:
         """Commands for sample ``i`` (every planned pose is feasible, see ``poses``)."""
         model, theta = self.model, self.poses[i]
         tension = model.tension_distribution(theta, self.f_min[i], f_max=self.ceiling)
-        held = held_muscles(model.muscle_jacobian(theta), tension)
+        holding = self.holding(theta, tension)
+        held = holding.held
         h = model.h_geom(theta)
         hold_command = np.where(held, h - model.stretch(tension), tension)
         hold_mode = tuple("length" if x else "tension" for x in held)
         approach, overshoot = self._overshoot(i, theta, tension, held, hold_mode, hold_command)
         return Target(index=i, theta=theta, f_min=self.f_min[i], tension=tension, held=held,
-                      approach_length=h - model.stretch(self.pretension),
+                      approach_length=h - model.stretch(holding.approach_tension),
                       hold_mode=hold_mode, hold_command=hold_command,
                       approach=approach, overshoot_command=overshoot)
+
+    def balance(self, theta: np.ndarray, floor: np.ndarray | None = None) -> np.ndarray:
+        """The lowest tensions that hold ``theta``: the QP with every floor at the pretension
+        or ``floor``, whichever is higher (``InfeasiblePoseError`` where none do)."""
+        floor = self.pretension if floor is None else np.maximum(floor, self.pretension)
+        return self.model.tension_distribution(theta, np.minimum(floor, self.ceiling),
+                                               f_max=self.ceiling)
+
+    def holding(self, theta: np.ndarray, tension: np.ndarray) -> Holding:
+        """How ``theta`` is held at ``tension`` (``pimbs_arm.holding``): the held muscles and
+        the approach tensions, the lowest that hold the pose (the QP with every floor at the
+        pretension), raised toward ``tension`` where the arm would not stay there.
+
+        Equal pretensions do not balance a pose: their net torque turns the arm until the
+        wires balance it. Where the moment arms leave a direction soft (MyoSuite's finger:
+        its flexors and extensor pull the two proximal joints nearly alike), that turn ran the
+        approach to the joint limits, 0.4 rad and more from the pose.
+        """
+        holding = plan_holding(self.model, theta, tension, self.balance(theta))
+        if holding is None:
+            raise InfeasiblePoseError(unstable_message(self.model, theta))
+        return holding
 
     def _overshoot(self, i: int, theta: np.ndarray, tension: np.ndarray, held: np.ndarray,
                    hold_mode: tuple[str, ...], hold_command: np.ndarray
@@ -139,25 +172,5 @@ class CollectionPlan:
         return {"seed": self.seed, "samples": self.n_samples, "map": self.map_kind,
                 "f_min": [float(self.pretension.min()), float(self.pretension.max())]
                 if self.map_kind == "al" else list(atl_floor_range(self.model)),
-                "replaced_poses": list(self.replaced)}
+                "replaced_poses": list(self.replaced), "scaled_floors": list(self.scaled)}
 
-
-def held_muscles(G: np.ndarray, tension: np.ndarray, slack: float = 0.5) -> np.ndarray:
-    """Mask of N loaded muscles whose rows of G (M, N) span the joints well.
-
-    Holding load-bearing muscles in length keeps the pose stiff (elastic elements are stiffest
-    under load), but only if their moment arms span every joint direction: a nearly singular
-    set lets the arm drift along the weak direction. Greedy: each pick is the most loaded of
-    the muscles that keep the smallest singular value of the picked rows within ``slack`` of
-    the best pick possible.
-    """
-    n_joints = G.shape[1]
-    chosen: list[int] = []
-    for k in range(n_joints):
-        rest = [m for m in range(len(tension)) if m not in chosen]
-        sigma = np.array([np.linalg.svd(G[chosen + [m]], compute_uv=False)[k] for m in rest])
-        ok = [m for m, s in zip(rest, sigma, strict=True) if s >= slack * sigma.max()]
-        chosen.append(max(ok, key=lambda m: tension[m]))
-    mask = np.zeros(len(tension), dtype=bool)
-    mask[chosen] = True
-    return mask

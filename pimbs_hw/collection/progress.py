@@ -131,7 +131,8 @@ class LogReporter:
 
 def summary_lines(s: Summary) -> list[str]:
     """The end-of-run summary (also after Ctrl-C, a safety stop or a full disk)."""
-    state = "complete" if s.complete else f"STOPPED: {s.stopped}" if s.stopped else "incomplete"
+    state = ("complete" if s.complete else f"STOPPED: {s.stopped}" if s.stopped
+             else f"FAILED: {s.failed}" if s.failed else "incomplete")
     lines = [f"collection {state}", f"  file {s.path}",
              f"  rows in file {s.rows} of {s.total} planned  (this run {s.written}, "
              f"before {s.already}); next sample {s.next_sample}",

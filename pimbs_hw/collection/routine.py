@@ -1,23 +1,28 @@
 """The collection loop: per sample, move to the pose, remove slack, settle, read, write.
 
 Order of events for sample i (see ``plan.Target``): every muscle length-controlled, ramped
-to the geometric length of a low pretension (the arm moves there; ``move.py``) until the
-motors are near those lengths; then the load-bearing muscles held in length and the others
-tension-controlled, ramped to the QP tensions (slack removed, pose kept), settle (the one
-full wait: the arm's creep from the move ends during the slack removal), read, and append
-one row. The slack removal overshoots the holding and comes back (``plan.Target.approach``),
-so each muscle's last motion, and with it the capstan friction, has a known direction. The
-row is on disk (atomically) before the next pose is commanded, so an interruption of any kind
-loses at most the sample in progress.
+to the geometric length of the approach tensions, the lowest that hold the pose stiffly (the
+arm moves there; ``move.py``) until the motors are near those lengths; then the load-bearing
+muscles held in length and the others tension-controlled, ramped to the QP tensions (slack
+removed, pose kept), settle (the one full wait: the arm's creep from the move ends during
+the slack removal), read, and append one row. The slack removal overshoots the holding and
+comes back (``plan.Target.approach``), so each muscle's last motion, and with it the capstan
+friction, has a known direction. The row is on disk (atomically) before the next pose is
+commanded, so an interruption of any kind loses at most the sample in progress.
 
 Between poses the slack removal is undone and the joints come to rest before the next move
 starts: under real dynamics an arm released at low tension swings, and a move commanded
-from a snapshot of a swinging arm runs it into a length-held wire.
+from a snapshot of a swinging arm runs it into a length-held wire. The first move starts
+from the relaxed arm at rest (or, where relaxing would let it fall out of its routed range,
+``relax.py``, from the arm held at its motors' lengths). The quasi-static simulated arm says
+itself when it rests (``ArmLink.at_rest``); every other arm is judged from its readings.
 
 From the move on, the routine watches below the boards' ceiling (``link.LoadGuard``): a wire
 past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
 the slack removal starts, gives that pose up: it is unloaded from where the arm is, recorded
-as skipped with a warning naming what happened, and the collection goes on. A description
+as skipped with a warning naming what happened, the arm starts over relaxed (where that is
+safe), and the collection goes on. A run that keeps fewer than half of the poses it tried is
+reported as failed (``Summary.failed``), not complete. A description
 that gets a load or a moment arm wrong fails on a few poses, not the whole collection; the
 boards' ceiling still stops everything that the guard cannot see coming.
 """
@@ -25,6 +30,7 @@ boards' ceiling still stops everything that the guard cannot see coming.
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import datetime as dt
 import time
 from collections.abc import Callable
@@ -48,6 +54,11 @@ OVERSHOOT_TOL = 3e-4
 # fraction of f_max past which the routine gives a pose up (unloads it and goes on): above
 # every command of a plan (PLAN_CEILING 0.9), below the boards' ceiling, which stops it all
 LOAD_LIMIT = 0.95
+# a run that gives up more than this share of the poses it tried is no complete collection
+GIVE_UP_SHARE = 0.5
+# a tension-controlled muscle counts as at rest within this share of its command (or the
+# settle tolerance): far enough from a relax not yet followed (0 N read against 10 N)
+REST_TENSION_SHARE = 0.25
 
 Holding = tuple[tuple[str, ...] | str, np.ndarray]  # (mode, command) sent while holding
 
@@ -92,7 +103,23 @@ class Summary:
 
     @property
     def complete(self) -> bool:
-        return self.next_sample >= self.total and self.stopped is None
+        """Every planned pose was tried, nothing stopped the run, and it kept most of them."""
+        return (self.next_sample >= self.total and self.stopped is None
+                and self.failed is None)
+
+    @property
+    def failed(self) -> str | None:
+        """What went wrong with a run that tried its poses but kept too few of them (None:
+        nothing did): it recorded nothing, or gave up more than ``GIVE_UP_SHARE`` of them."""
+        tried = self.next_sample - self.start
+        if self.stopped is not None or tried <= 0:
+            return None
+        if self.rows == 0:
+            return f"no pose was recorded: all {tried} tried were given up"
+        if len(self.skipped) > GIVE_UP_SHARE * tried:
+            return (f"{len(self.skipped)} of the {tried} poses tried were given up, "
+                    f"{self.written} recorded")
+        return None
 
 
 class Reporter(Protocol):
@@ -117,19 +144,29 @@ class Collector:
     def __init__(self, link: ArmLink, model: ArmModel, plan: CollectionPlan,
                  writer: RecordingWriter, start: int, settle: SettleConfig,
                  reporter: Reporter | None = None, move: MoveConfig | None = None,
-                 now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC)) -> None:
+                 now: Callable[[], dt.datetime] = lambda: dt.datetime.now(dt.UTC),
+                 relax_safe: bool = True) -> None:
         f_max = np.array([m.f_max for m in model.robot.muscles])
         self.link = LoadGuard(ApproachLink(link, model.n_muscles), LOAD_LIMIT * f_max,
                               MAX_POSE_EXCURSION, model.muscles)
         self.model, self.plan, self.writer = model, plan, writer
         self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
         self.move = move or MoveConfig()
+        if getattr(link, "quasi_static", False):  # nothing swings: no gentle loading needed
+            self.move = dataclasses.replace(self.move, quasi_static=True)
+        self.floor = np.array([m.f_floor for m in model.robot.muscles])
+        # relaxing keeps the arm in its routed range (``relax.relax_fall``): it then starts,
+        # and after a pose given up starts over, from the relaxed rest; else it is held
+        self.relax_safe = relax_safe
         self.summary = Summary(path=str(writer.path), total=plan.n_samples, start=start,
                                next_sample=start, already=writer.n_rows)
 
     def run(self) -> Summary:
         """Collect samples ``start .. total-1``; exceptions propagate with the file intact."""
-        reading = self.link.read()  # the first pose is approached from where the arm is
+        # the first pose is approached from where the arm is, once it rests: the driver has
+        # just relaxed it (or holds it), and a move from a snapshot of a falling arm starts
+        # from nowhere
+        reading = self._start_over()
         theta = self._theta(reading, np.zeros(self.model.n_joints))
         previous = None  # target the arm is loaded at (None: relaxed)
         holding: Holding | None = None  # what the arm holds between samples (None: read only)
@@ -166,7 +203,7 @@ class Collector:
         settle (``Overload`` if a muscle pulls past the load limit on the way)."""
         model, muscles, cfg = self.model, self.model.muscles, self.move
         with self.link.watching():
-            run_ramp(self.link, move(model, reading, theta, target, cfg))
+            run_ramp(self.link, move(model, reading, theta, target, cfg, self.plan.balance))
             moved = hold_until_settled(self.link, "length", target.approach_length,
                                        self.settle.reached(), muscles)
             self.link.pose = target.theta  # from here on the arm stays near the pose
@@ -178,10 +215,26 @@ class Collector:
             return hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
 
+    def _start_over(self) -> Reading:
+        """The arm relaxed and at rest, where relaxing keeps it in its routed range, else held
+        at its motors' lengths: where the next pose is approached from."""
+        if self.relax_safe:
+            return self._rest("relax", self.floor).reading
+        reading = self.link.read()
+        return self._rest("length", reading.length).reading
+
     def _give_up(self, i: int, target: Target, over: Overload) -> tuple[Reading, Holding]:
         """Unload the pose the arm ran off or overloaded, record it as skipped and warn; the
-        arm then holds the low-tension approach of that pose."""
+        arm then starts over relaxed (where that is safe), else it holds the low-tension
+        approach of that pose.
+
+        A pose is given up because the arm went somewhere else: another rest position of the
+        same lengths (MyoSuite's finger with a joint on its limit and the neighbouring joint
+        bent instead), or a snagged or overloaded wire. Unloaded in place, the next move would
+        start from there, and on the finger the next pose failed the same way."""
         reading, holding = self._unload(target, over.reading)
+        if self.relax_safe:
+            reading, holding = self._start_over(), ("relax", self.floor)
         s = self.summary
         s.skipped.append(i)
         s.next_sample = i + 1
@@ -203,9 +256,37 @@ class Collector:
         ramp = release(self.model, reading, target, self.move)
         run_ramp(self.link, ramp)
         holding = (ramp.mode, ramp.commands[-1])
-        rested = hold_until_settled(self.link, *holding, self.settle.reached(),
-                                    self.model.muscles)
-        return rested.reading, holding
+        return self._rest(*holding).reading, holding
+
+    def _rest(self, mode: tuple[str, ...] | str, command: np.ndarray) -> Settled:
+        """Hold ``(mode, command)`` until no swing is to come before the next move: as the
+        arm itself says where it knows (the quasi-static simulated arm, once its equilibrium
+        is solved: it then only closes in on it), else judged from the readings (motors at
+        their commands, joints still; see ``SettleConfig.reached``)."""
+        if self.link.at_rest() is None:
+            return hold_until_settled(self.link, mode, command, self._rest_config(mode, command),
+                                      self.model.muscles)
+        start = time.monotonic()
+        while True:
+            self.link.command(mode, command)
+            reading = self.link.read()
+            elapsed = time.monotonic() - start
+            if self.link.at_rest() or elapsed >= self.settle.timeout:
+                return Settled(reading, True, elapsed, 1)
+            time.sleep(self.settle.poll)
+
+    def _rest_config(self, mode: tuple[str, ...] | str, command: np.ndarray) -> SettleConfig:
+        """Rest judged from the readings: the end of a move (``SettleConfig.reached``), and
+        the tension-controlled muscles at their tensions (within ``REST_TENSION_SHARE`` of
+        them, at least the settle tolerance). An arm that has not yet begun to follow a new
+        tension command (a relax at the start: boards or a simulated arm running behind, as
+        on a loaded machine) reads as still as one at rest; the move planned from there
+        started from where the arm was about to leave."""
+        modes = (mode,) * len(command) if isinstance(mode, str) else tuple(mode)
+        is_tension = np.array([m != "length" for m in modes])
+        tol = np.maximum(self.settle.tension_tol, REST_TENSION_SHARE * np.abs(command))
+        return dataclasses.replace(self.settle.reached(),
+                                   tension_tol=np.where(is_tension, tol, np.inf))
 
     def _overshot(self, target: Target) -> SettleConfig:
         """Reached the overshoot: every motor within ``OVERSHOOT_TOL`` of it (in length, or

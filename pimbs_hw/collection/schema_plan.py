@@ -40,7 +40,6 @@ from pimbs_hw.collection.plan import (
     OVERSHOOT_CEILING,
     CollectionPlan,
     Target,
-    held_muscles,
 )
 
 TENSION_ITERATIONS = 30  # linear convergence where G depends on f (an MLP ATL-Map)
@@ -125,14 +124,18 @@ class SchemaPlan(CollectionPlan):
             raise Unsafe(f"tension far outside the schema's training range ({'; '.join(far)})")
         outside = domain.outside(theta, tension, model.joints, model.muscles)
         schema = self.anchored
-        G = schema.jacobian(theta, tension)
-        held = held_muscles(G, tension)
+        try:  # held set and approach tensions from the description's stiffness at the pose
+            holding = self.holding(theta, tension)
+        except InfeasiblePoseError as exc:
+            raise Unsafe(f"the description cannot hold this pose at the schema's tensions "
+                         f"({exc})") from exc
+        held = holding.held
         learned = schema.length(theta, tension)
         hold_command = np.where(held, learned, tension)
         hold_mode = tuple("length" if x else "tension" for x in held)
         # The schema's correction of each path at this pose, carried to the approach lengths
-        # (the geometric plan's: every wire at the pretension).
-        approach_length = (model.length(theta, self.pretension)
+        # (the geometric plan's: the holding's approach tensions).
+        approach_length = (model.length(theta, holding.approach_tension)
                            + (learned - model.length(theta, tension)))
         correction = learned - model.length(theta, tension)
         self._check_correction(correction)

@@ -15,7 +15,7 @@ import numpy as np
 
 from pimbs_calibration.description import RobotDescription
 from pimbs_hw import open_arm
-from pimbs_hw.collection.link import DriverLink
+from pimbs_hw.collection.link import DriverLink, SimulatedArmFailed
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.errors import HardwareError
 from pimbs_hw.safety import (
@@ -40,9 +40,11 @@ class ConnectError(HardwareError):
 @contextlib.contextmanager
 def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
               conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0,
-              zero_m=None, plant: Path | None = None) -> Iterator[DriverLink]:
+              zero_m=None, plant: Path | None = None,
+              hold: bool = False) -> Iterator[DriverLink]:
     """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``; with
-    ``plant``, an MJCF that MuJoCo integrates as that arm).
+    ``plant``, an MJCF that MuJoCo integrates as that arm). ``hold``: the motors hold their
+    lengths when the boards are configured, instead of relaxing (``relax.relax_fall``).
 
     On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
     """
@@ -51,7 +53,7 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
         try:
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
-                speed=speed, zero_m=zero_m,
+                speed=speed, zero_m=zero_m, hold_at_start=hold,
                 mock_options=None if plant is None else {"plant": plant}))
         except SafetyStop as stop:
             raise ConnectError(
@@ -81,6 +83,17 @@ _ADVICE: tuple[tuple[type[SafetyStop], str], ...] = (
 )
 
 
+def simulation_cause(stop: SafetyStop, link: DriverLink | None) -> SafetyStop:
+    """The stop to report: the simulated arm's own failure where it had one (a blown-up
+    MuJoCo step reaches a board's ceiling or its loadcell's rail first), else ``stop``."""
+    failure = None if link is None or link.mock is None else link.mock.failure()
+    if failure is None or isinstance(stop, SimulatedArmFailed):
+        return stop
+    cause = SimulatedArmFailed(failure, port=stop.port)
+    cause.end_state = stop.end_state
+    return cause
+
+
 def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
                 sample: int | None = None) -> str:
     """The stop's message plus what to do about it before ``--resume``.
@@ -93,6 +106,8 @@ def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
                 "inspect the arm")
     state = getattr(stop, "end_state", "relaxed")
     state = "The arm was relaxed" if state == "relaxed" else f"Arm left {state}"
+    if isinstance(stop, SimulatedArmFailed):  # its message says what happened and what to do
+        return f"{stop}. {state}."
     if isinstance(stop, TensionLimit) and plan is not None and sample is not None \
             and sample < plan.n_samples:
         return f"{stop}. {state}. {ceiling_verdict(stop, plan, sample)}"

@@ -239,6 +239,27 @@ class MockArm:
         with self._lock:
             return self.plant.settled()
 
+    @property
+    def quasi_static(self) -> bool:
+        """The arm behind the boards is the quasi-static one (no inertia, nothing rings) and
+        no concealed capstan friction couples the boards' tension loops to the wires' motion
+        (with it, a wire loaded fast overshoots through the friction as on a real arm)."""
+        return isinstance(self.plant, Plant) and not any(
+            getattr(e, "name", None) == "tendon_friction" for e in self.effects.effects)
+
+    def at_rest(self) -> bool | None:
+        """Whether the simulated arm is at rest, where it knows (the quasi-static arm: its
+        equilibrium is solved); None where, as on a real arm, only the readings can tell."""
+        if not self.quasi_static:
+            return None
+        with self._lock:
+            return self.plant.at_rest()
+
+    def failure(self) -> str | None:
+        """Why the simulated arm stopped following its commands (None: it follows them): a
+        MuJoCo step that blew up, a static solve that found no rest position."""
+        return self.plant.failure
+
     # -- board loop ------------------------------------------------------------------------
     def _clock(self) -> float:
         """The simulated boards' time: wall time less the stalls of this process.

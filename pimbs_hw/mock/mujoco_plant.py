@@ -28,6 +28,7 @@ forces that depend on the current state.
 from __future__ import annotations
 
 import itertools
+import sys
 import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -44,13 +45,40 @@ from pimbs_calibration.mjcf import (
     joint_names,
     tendon_names,
 )
-from pimbs_hw.mock.plant import PlantState, thermal_step
+from pimbs_hw.mock.plant import PlantState, power_up, thermal_step
 from pimbs_recording.approach import FrictionPlay
 
 _EXP_CAP = 60.0  # cap K*dn: a tension beyond e^60 N is a broken simulation, not a number
 SETTLED_SPEED = 1e-3  # rad/s: joints slower than this for REST_S (motors at their targets)
 REST_S = 0.2  # s of arm time: a swing's turning point is slow only for an instant
 RING_TARGET_S = 0.5  # s: the decay time the suggested joint damping gives the plant arm
+# share of the stability limit 2/ω a step may take: ω is that of every wire at f_max at once,
+# beyond any state a collection holds, and the elastic law stiffens within a swing
+STEP_SHARE = 0.8
+MAX_SPEED = 1e3  # rad/s: no arm's joint turns faster; beyond it the integration blew up
+
+
+_QUIET = threading.local()  # set while this thread steps a plant: MuJoCo's warnings are ours
+
+
+def _quiet_mujoco_warnings() -> None:
+    """Route MuJoCo's warnings through a handler that drops them while a plant steps (the
+    plant reads MuJoCo's warning counters and reports in its own words) and prints them as
+    MuJoCo would otherwise."""
+    if getattr(_quiet_mujoco_warnings, "installed", False):
+        return
+    previous = mujoco.get_mju_user_warning()
+
+    def handler(message: str) -> None:
+        if getattr(_QUIET, "on", False):
+            return
+        if previous is not None:
+            previous(message)
+        else:
+            print(f"WARNING: {message}", file=sys.stderr)
+
+    mujoco.set_mju_user_warning(handler)
+    _quiet_mujoco_warnings.installed = True
 
 
 class PlantMismatch(ValueError):
@@ -136,34 +164,65 @@ class Ringing:
                 f"joints damping of about {want} N·m·s/rad, or its tendons damping")
 
 
-def ringing(xml: Path, robot) -> Ringing:
-    """``Ringing`` of the plant MJCF ``xml`` driven as ``robot`` describes (its joints and
-    muscles by name, others locked as the plant holds them)."""
-    mj = _compile(Path(xml))
-    jid, _ = _driven(mj, robot, Path(xml))
+@dataclass(frozen=True)
+class _Pose:
+    """The plant arm at one pose, in the driven joints' coordinates: the followers of its
+    joint couplings move with their leaders (``S``; the identity without couplings)."""
+
+    inertia: np.ndarray  # (N, N) joint-space inertia, armature included
+    jac: np.ndarray      # (ntendon, N) every tendon's Jacobian
+    S: np.ndarray        # (len(columns), N) d(moved dofs)/d(driven joints)
+
+    def joints(self, per_dof: np.ndarray) -> np.ndarray:
+        """(N, N) of a per-dof diagonal (damping, stiffness) of the moved dofs: SᵀDS."""
+        return self.S.T @ (per_dof[:, None] * self.S)
+
+
+def _reduce(mj: mujoco.MjModel, data: mujoco.MjData, coupled: CoupledJoints,
+            jac: np.ndarray) -> _Pose:
+    """``_Pose`` of ``data`` (positions forwarded, followers placed; ``jac`` its dense tendon
+    Jacobian (ntendon, nv))."""
+    full_m = np.zeros((mj.nv, mj.nv))
+    mujoco.mj_fullM(mj, data, full_m)
+    cols = coupled.columns
+    S = coupled.jacobian(data.qpos)
+    return _Pose(inertia=S.T @ full_m[np.ix_(cols, cols)] @ S, jac=jac[:, cols] @ S, S=S)
+
+
+def _sweep(mj: mujoco.MjModel, robot, xml: Path
+           ) -> tuple[list[int], np.ndarray, CoupledJoints, list[_Pose]]:
+    """The driven dofs, the muscles' tendon ids, the driven joints with the followers they
+    move, and the arm (``_Pose``) at the centre and corners of the joint ranges (others held
+    at the plant's reference pose, followers where their couplings put them)."""
+    jid, tendons = _driven(mj, robot, xml)
     qadr, dof = mj.jnt_qposadr[jid], mj.jnt_dofadr[jid]
-    coupled = _coupled(mj, robot, Path(xml))
-    cols = np.ix_(coupled.columns, coupled.columns)
+    coupled = _coupled(mj, robot, xml)
     data = mujoco.MjData(mj)
-    full_m, jac = np.zeros((mj.nv, mj.nv)), np.zeros((mj.ntendon, mj.nv))
+    jac = np.zeros((mj.ntendon, mj.nv))
     lo, hi = np.asarray(robot.joint_range, float).T
-    poses = [(lo + hi) / 2] + _corners(lo, hi)
-    decay, inertias = 0.0, []
-    for theta in poses:
+    out = []
+    for theta in [(lo + hi) / 2] + _corners(lo, hi):
         data.qpos[:] = mj.qpos0
         data.qpos[qadr] = theta
         coupled.place(data.qpos)
         mujoco.mj_forward(mj, data)
-        mujoco.mj_fullM(mj, data, full_m)
         mujoco.mju_sparse2dense(jac, data.ten_J, mj.ten_J_rownnz, mj.ten_J_rowadr,
                                 mj.ten_J_colind)
-        # in the driven joints' coordinates: followers move with them (S; the identity
-        # without couplings)
-        S = coupled.jacobian(data.qpos)
-        inertias.append(S.T @ full_m[cols] @ S)
-        damping = S.T @ (np.diag(mj.dof_damping) + jac.T @ np.diag(mj.tendon_damping) @ jac
-                         )[cols] @ S
-        decay = max(decay, _decay_s(damping, inertias[-1]))
+        out.append(_reduce(mj, data, coupled, jac))
+    return list(dof), tendons, coupled, out
+
+
+def ringing(xml: Path, robot) -> Ringing:
+    """``Ringing`` of the plant MJCF ``xml`` driven as ``robot`` describes (its joints and
+    muscles by name, others locked as the plant holds them)."""
+    mj = _compile(Path(xml))
+    dof, _, coupled, sweep = _sweep(mj, robot, Path(xml))
+    decay = 0.0
+    for pose in sweep:
+        damping = (pose.joints(mj.dof_damping[coupled.columns])
+                   + pose.jac.T @ np.diag(mj.tendon_damping) @ pose.jac)
+        decay = max(decay, _decay_s(damping, pose.inertia))
+    inertias = [pose.inertia for pose in sweep]
     # joint damping in proportion to each joint's largest inertia, scaled so that no pose
     # rings longer than RING_TARGET_S (decay scales as 1/damping; the tendons' only adds)
     shape = np.max([np.diag(m) for m in inertias], axis=0)
@@ -179,6 +238,78 @@ def _corners(lo: np.ndarray, hi: np.ndarray, most: int = 256) -> list[np.ndarray
         return [np.array(c) for c in itertools.product(*zip(lo, hi, strict=True))]
     pick = np.random.default_rng(0).integers(0, 2, (most, len(lo))).astype(bool)
     return list(np.where(pick, hi, lo))
+
+
+@dataclass(frozen=True)
+class Timestep:
+    """The plant's timestep against its stiffest element.
+
+    MuJoCo integrates the series elastic elements' force explicitly (it is computed from the
+    positions, then integrated), so a swing of angular frequency ω is stable only while
+    ω·dt < 2, and the elastic law stiffens as it swings (df/dl = K(f + 1)). ω is largest with
+    every wire at its f_max (the boards' ceiling): the largest eigenvalue of M⁻¹S, S the
+    joint-space stiffness of the wires, the tendons' and joints' own springs, M the inertia
+    with armature, the worst over the centre and corners of the joint ranges. The plant
+    steps at most ``STEP_SHARE``·2/ω: the file's timestep where that is fine, else the file's
+    timestep divided into as many equal steps as it takes.
+    """
+
+    file_s: float   # the plant file's <option timestep>
+    omega: float    # rad/s, the fastest swing of its stiffest state
+    muscle: str     # the wire that stiffens the fastest swing most
+    f_max: float    # N, that wire's f_max
+
+    @property
+    def needed_s(self) -> float:
+        return STEP_SHARE * 2.0 / self.omega if self.omega > 0 else np.inf
+
+    @property
+    def step_s(self) -> float:
+        """The step the plant integrates with."""
+        return self.file_s / max(1, int(np.ceil(self.file_s / self.needed_s - 1e-9)))
+
+    def note(self, xml: Path) -> str:
+        """One line when the plant must step finer than its file says, else ''."""
+        if self.step_s >= self.file_s:
+            return ""
+        return (f"note: the plant {xml} is integrated with {self.step_s * 1e3:.3g} ms steps, "
+                f"not its file's {self.file_s * 1e3:.3g} ms: at its f_max ({self.f_max:.0f} N) "
+                f"the wire {self.muscle} makes the arm swing at {self.omega:.0f} rad/s, and "
+                f"MuJoCo's steps must stay well below 2/ω = {2e3 / self.omega:.2g} ms or the "
+                f'simulated arm blows up (<option timestep="{self.needed_s:.2g}"/> in the file '
+                "makes this its own)")
+
+
+def timestep(xml: Path, robot, mj: mujoco.MjModel | None = None) -> Timestep:
+    """``Timestep`` of the plant MJCF ``xml`` (``mj``: already compiled) driven as ``robot``
+    describes."""
+    mj = _compile(Path(xml)) if mj is None else mj
+    _, tendons, coupled, sweep = _sweep(mj, robot, Path(xml))
+    wire = np.array([m.K * (m.f_max + 1.0) for m in robot.muscles])  # N/m at f_max
+    springs = np.zeros(mj.ntendon)
+    springs[tendons] = wire
+    springs += mj.tendon_stiffness
+    joint_springs = mj.jnt_stiffness[mj.dof_jntid[coupled.columns]]
+    omega2, worst = 0.0, 0
+    for pose in sweep:
+        stiffness = pose.joints(joint_springs) + pose.jac.T @ (springs[:, None] * pose.jac)
+        w, v = scipy.linalg.eigh(stiffness, pose.inertia)
+        if w[-1] > omega2:  # the wire doing most of the work in the fastest swing
+            omega2 = float(w[-1])
+            worst = int(np.argmax(wire * (pose.jac[tendons] @ v[:, -1]) ** 2))
+    return Timestep(file_s=float(mj.opt.timestep), omega=float(np.sqrt(max(omega2, 0.0))),
+                    muscle=robot.muscles[worst].name, f_max=float(robot.muscles[worst].f_max))
+
+
+def plant_notes(xml: Path, robot, wait_s: float) -> list[str]:
+    """The lines to show before the plant arm moves: how it rings (``Ringing.note``) and
+    the timestep it is integrated with (``Timestep.note``); a plant that does not fit the
+    description is refused (``PlantMismatch``)."""
+    xml = Path(xml)
+    mj = _compile(xml)
+    notes = [ringing(xml, robot).note(xml, robot.joints, wait_s),
+             timestep(xml, robot, mj).note(xml)]
+    return [note for note in notes if note]
 
 
 def _decay_s(damping: np.ndarray, inertia: np.ndarray) -> float:
@@ -198,8 +329,14 @@ class MujocoPlant:
         self.xml = Path(xml)
         self.mj = _compile(self.xml)
         self._map(model.robot)
-        # the boards drive the tendons; actuators the MJCF may define are not part of the arm
-        self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        # the boards drive the tendons; actuators the MJCF may define are not part of the arm.
+        # A blown-up step is detected and reported (``failure``), not silently reset to qpos0.
+        self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION
+                                        | mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        self.step_check = timestep(self.xml, model.robot, self.mj)
+        self.mj.opt.timestep = self.step_check.step_s
+        self.failure: str | None = None  # why the simulation stopped (it then stands still)
+        _quiet_mujoco_warnings()
         self.data = mujoco.MjData(self.mj)
         self.speed, self.motor_tau_s, self.tau_thermal_s = speed, motor_tau_s, tau_thermal_s
         m = model.n_muscles
@@ -210,15 +347,23 @@ class MujocoPlant:
         self._J = np.zeros((self.mj.ntendon, self.mj.nv))
         self._home = False
         self._reset_locked()
-        self._coupled.place(self.data.qpos)  # followers start where their couplings hold
+        # the description's lengths count from theta = 0 (h_geom(0) = 0), not from the
+        # file's reference pose qpos0 (a joint's ref), where MjData starts
+        self.data.qpos[self._qadr] = 0.0
+        self._coupled.place(self.data.qpos)  # followers where their couplings hold
         mujoco.mj_fwdPosition(self.mj, self.data)
         self._h0 = self.data.ten_length[self._tendon].copy()  # tendon lengths at theta = 0
-        # power-up: motors hold their length (l = 0), the arm sags onto its elastic elements
+        # power-up: motors hold their length, the arm sags onto its elastic elements
+        theta, lengths = power_up(model)
+        self.data.qpos[self._qadr] = theta
+        self._coupled.place(self.data.qpos)  # and their followers where the couplings hold
         self._is_length = np.ones(m, dtype=bool)
-        self._command = np.zeros(m)
-        self._motor = np.zeros(m)  # motor length (m) of length-mode muscles
+        self._command = lengths.copy()
+        self._motor = lengths.copy()  # motor length (m) of length-mode muscles
         self._force = np.zeros(m)  # tension (N) of tension-mode muscles' force loop
         self._tension = np.zeros(m)
+        self._gains()
+        self._locked = bool(len(self._locked_q) or len(self._locked_v))
         self._lock = threading.Lock()
         self._debt = 0.0  # arm time not yet simulated (less than one timestep)
         self._rest_s = 0.0  # arm time the joints have been slow for
@@ -259,34 +404,103 @@ class MujocoPlant:
             d.qvel[self._coupled.columns] = 0.0
 
     def _substep(self) -> None:
-        """One MuJoCo timestep: motors, elastic elements, tendon forces, integration."""
+        """One MuJoCo timestep: motors, elastic elements, tendon forces, integration (lean:
+        thousands of these run per second of arm time)."""
         m, d = self.mj, self.data
-        dt = m.opt.timestep
-        a = 1.0 - np.exp(-dt / self.motor_tau_s)
-        self._motor += a * np.where(self._is_length, self._command - self._motor, 0.0)
-        self._force += a * np.where(self._is_length, 0.0, self._command - self._force)
+        self._motor += self._gain_length * (self._command - self._motor)
+        self._force += self._gain_tension * (self._command - self._force)
         mujoco.mj_step1(m, d)
-        h = d.ten_length[self._tendon] - self._h0
-        dn = np.minimum(self.K * np.maximum(h - self._motor, 0.0), _EXP_CAP)
-        self._tension = np.where(self._is_length, np.expm1(dn), np.maximum(self._force, 0.0))
+        kdn = self.K * (d.ten_length[self._tendon] - self._h0 - self._motor)
+        np.clip(kdn, 0.0, _EXP_CAP, out=kdn)
+        self._tension = np.where(self._is_length, np.expm1(kdn), np.maximum(self._force, 0.0))
         mujoco.mju_sparse2dense(self._J, d.ten_J, m.ten_J_rownnz, m.ten_J_rowadr,
                                 m.ten_J_colind)
-        d.qfrc_applied[:] = -self._J[self._tendon].T @ self._tension
+        d.qfrc_applied[:] = self._tension @ self._J[self._tendon]
+        d.qfrc_applied *= -1.0
         mujoco.mj_step2(m, d)
-        self._reset_locked()
-        self._rest_s = self._rest_s + dt if self._slow() else 0.0
+        if self._locked:
+            self._reset_locked()
+        self._rest_s = self._rest_s + m.opt.timestep if self._slow() else 0.0
+
+    def _gains(self) -> None:
+        """Per-step first-order gains of the length servos and the tension loops."""
+        a = 1.0 - np.exp(-self.mj.opt.timestep / self.motor_tau_s)
+        self._gain_length = a * self._is_length
+        self._gain_tension = a * ~self._is_length
+
+    def _blew_up(self, peak: np.ndarray) -> bool:
+        """The integration has left the arm's physics: MuJoCo's own verdict (a non-finite or
+        huge acceleration, position or velocity), a joint spinning faster than any arm
+        (``MAX_SPEED``), or a swing the timestep cannot follow (ω·dt ≥ 2 at the tensions
+        ``peak`` reached: each step then amplifies it)."""
+        bad = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
+               mujoco.mjtWarning.mjWARN_BADQVEL)
+        d = self.data
+        if any(d.warning[int(w)].number for w in bad) or not (
+                np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+            return True
+        if np.abs(d.qvel[self._coupled.columns]).max(initial=0.0) > MAX_SPEED:
+            return True
+        return self._swing(peak) * self.mj.opt.timestep >= 2.0
+
+    def _swing(self, tension: np.ndarray) -> float:
+        """rad/s of the fastest swing of the driven joints (their followers moving with them)
+        with the wires at ``tension``."""
+        m = self.mj
+        pose = _reduce(m, self.data, self._coupled, self._J)
+        jac = pose.jac[self._tendon]
+        load = np.minimum(np.where(np.isfinite(tension), tension, np.inf), np.expm1(_EXP_CAP))
+        stiffness = jac.T @ ((self.K * (load + 1.0))[:, None] * jac) + pose.joints(
+            m.jnt_stiffness[m.dof_jntid[self._coupled.columns]])
+        if not np.isfinite(stiffness).all():
+            return np.inf
+        w = scipy.linalg.eigh(stiffness, pose.inertia, eigvals_only=True)
+        return float(np.sqrt(max(w[-1], 0.0)))
+
+    def _unstable(self, tension: np.ndarray) -> str:
+        """The line that says the simulated arm went unstable, and why: the swing its stiffest
+        wire drove (at ``tension``, the highest on the way) was too fast for the timestep."""
+        m, d = self.mj, self.data
+        omega = self._swing(tension)
+        k = int(np.argmax(np.where(np.isfinite(tension), tension, np.inf)))
+        name = self.model.muscles[k]
+        pulled = f"{tension[k]:.0f} N" if np.isfinite(tension[k]) else "no finite tension"
+        return (f"the simulated arm ({self.xml}, integrated by MuJoCo) went unstable after "
+                f"{d.time:.2f} s of arm time: with the wire {name} at {pulled} it swings at "
+                f"{omega:.0f} rad/s, and a {m.opt.timestep * 1e3:.3g} ms step needs that below "
+                f"{2.0 / m.opt.timestep:.0f} rad/s. Nothing on the arm failed: give the plant a "
+                "smaller <option timestep> (or, if the plan asked for this tension, a wire with "
+                "a higher f_max)")
 
     def _advance(self, arm_s: float, until_rest: bool = False) -> None:
-        """Simulate ``arm_s`` seconds of arm time (or until the arm is at rest)."""
+        """Simulate ``arm_s`` seconds of arm time (or until the arm is at rest). Steps that
+        blow up are undone back to the start of this call, and the simulation stops there
+        with ``failure`` set (it stands still from then on)."""
+        if self.failure is not None:
+            return
         dt = self.mj.opt.timestep
         self._debt += arm_s
         n = int(self._debt / dt)
         self._debt -= n * dt
-        for _ in range(n):
-            self._substep()
-            if until_rest and self._at_rest():
-                self._debt = 0.0
-                return
+        d = self.data
+        before = (d.time, d.qpos.copy(), d.qvel.copy(), self._motor.copy(),
+                  self._force.copy(), self._tension.copy(), self._rest_s)
+        peak = np.zeros_like(self._tension)  # the tensions on the way, for the report
+        _QUIET.on = True
+        try:
+            for _ in range(n):
+                self._substep()
+                np.fmax(peak, self._tension, out=peak)
+                if until_rest and self._at_rest():
+                    self._debt = 0.0
+                    break
+        finally:
+            _QUIET.on = False
+        if self._blew_up(peak):
+            (d.time, d.qpos[:], d.qvel[:], self._motor[:], self._force[:], self._tension[:],
+             self._rest_s) = before
+            mujoco.mj_forward(self.mj, d)
+            self.failure = self._unstable(peak)
 
     def _slow(self) -> bool:
         return bool(np.abs(self.data.qvel[self._dof]).max(initial=0.0) < SETTLED_SPEED)
@@ -316,12 +530,18 @@ class MujocoPlant:
             self._force[became_tension] = self._tension[became_tension]
             self._is_length = is_length
             self._command = np.array(values, dtype=np.float64)
+            self._gains()
 
     def hold_home(self, on: bool = True) -> None:
         """Hold (or let go of) the arm at its home pose, as a person zeroing it would."""
         with self._lock:
             self._home = on
+            self._locked = bool(on or len(self._locked_q) or len(self._locked_v))
             self._reset_locked()
+
+    def at_rest(self) -> None:
+        """Unknown to the host, as on a real arm: it judges rest from the readings."""
+        return None
 
     def settled(self, tol: float = 1e-4) -> bool:
         """Joints at rest and every motor within ``tol`` (m) or 0.05 N of its target."""

@@ -146,6 +146,7 @@ def record_plant(arm: ArmModel, plant_xml: str | Path, n_samples: int, map_kind:
                      f_min=[0.0, 0.0] if map_kind == "al" else list(atl_floor_range(arm)),
                      joint_range=arm.joint_range.tolist(), K=arm.K.tolist(), noise=noise,
                      theta_source="joint_encoders", replaced_poses=list(plan.replaced),
+                     scaled_floors=list(plan.scaled),
                      skipped_samples=stats.skipped, loadcell_zero_temperature_C=T_REF)
     stats.wall_s = time.perf_counter() - t0
     return data, meta, stats
@@ -187,16 +188,17 @@ def _move(plant: MujocoPlant, arm: ArmModel, theta0: np.ndarray, f0: np.ndarray,
 def _settle(plant: MujocoPlant, thermal, temp: np.ndarray, timeout_s: float
             ) -> tuple[float, bool, np.ndarray]:
     """Step until the plant is at rest or ``timeout_s`` has passed; (arm time, at rest,
-    temperatures)."""
+    temperatures). A simulation that blew up (``MujocoPlant.failure``: it then stands still,
+    which is no rest) is an error, not a row."""
     waited = 0.0
-    while not plant.settled():
+    while plant.failure is None and not plant.settled():
         if waited >= timeout_s:
             return waited, False, temp
         state = plant.step(CHUNK_S)
         temp = thermal.step(temp, state.tension, CHUNK_S)
         waited += CHUNK_S
-        if not np.isfinite(state.theta).all():
-            raise FloatingPointError(f"{plant.xml}: the MuJoCo simulation diverged")
+    if plant.failure is not None:
+        raise FloatingPointError(plant.failure)
     return waited, True, temp
 
 

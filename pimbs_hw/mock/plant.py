@@ -38,6 +38,23 @@ def thermal_step(temperature: np.ndarray, tension: np.ndarray, ambient_c: np.nda
     return temperature + b * (hot - temperature) + heat_rate_c_per_s * dt
 
 
+def power_up(model) -> tuple[np.ndarray, np.ndarray]:
+    """Where the simulated arm powers up: (pose, motor lengths held).
+
+    At θ = 0 with every motor at l = 0, where θ = 0 lies within the joint limits. An arm
+    whose zero pose lies outside a joint's limits (an elbow whose range starts at 30°) cannot
+    be there: it powers up at the nearest pose within its limits, wires at their holding
+    floor, not with the lengths of θ = 0, which would stretch a wire by centimetres against
+    the stop (thousands of newtons before the first command).
+    """
+    theta = np.clip(np.zeros(model.n_joints), model.joint_limits[:, 0],
+                    model.joint_limits[:, 1])
+    if not theta.any():
+        return theta, np.zeros(model.n_muscles)
+    floor = np.array([mu.f_floor for mu in model.robot.muscles])
+    return theta, model.h_geom(theta) - model.stretch(floor)
+
+
 class _Solver:
     """Latest-request-wins equilibrium solver thread."""
 
@@ -50,6 +67,7 @@ class _Solver:
         self._theta = theta0
         self.target = None  # latest Equilibrium
         self.home = False  # someone holds the arm at its home pose (theta = 0)
+        self.failure: str | None = None  # a solve that was no rest position (first one)
         self._thread = threading.Thread(target=self._run, name="mock-equilibrium", daemon=True)
         self._thread.start()
 
@@ -77,10 +95,25 @@ class _Solver:
             except Exception as exc:  # noqa: BLE001 - a failed solve keeps the previous target
                 log.warning("mock arm: equilibrium failed for %s %s: %s", modes, values, exc)
                 eq = None
+            failure = None if eq is None else self._failure(eq)
             with self._cond:
-                if eq is not None:
+                if failure is not None:
+                    self.failure = self.failure or failure
+                elif eq is not None:
                     self.target, self._theta = eq, np.asarray(eq.theta, float)
                 self._busy = False
+
+    def _failure(self, eq) -> str | None:
+        """Why a solve is no rest position (None: it is one). A solve that did not converge
+        is not where the arm rests, and the arm keeps moving toward the last one that was."""
+        if eq.converged and np.isfinite(eq.tension).all():
+            return None
+        model = self._model
+        k = int(np.nanargmax(np.where(np.isfinite(eq.tension), eq.tension, np.inf)))
+        return (f"the simulated arm found no rest position under the commands sent (its "
+                f"static equilibrium did not converge: residual {eq.residual:.3g} N·m, "
+                f"{model.muscles[k]} at {eq.tension[k]:.3g} N): the commands pull its wires "
+                "against each other or a joint into its limit. No board or wire failed")
 
     def _held_home(self, modes, values):
         """The state with the joints held at 0: each wire's own statics, no pose to solve."""
@@ -114,9 +147,10 @@ class Plant:
         self.ambient_c = np.broadcast_to(np.asarray(ambient_c, float), (m,)).copy()
         self.heat_c_per_n = heat_c_per_n
         self.heat_rate_c_per_s = np.zeros(m)  # injected heating (overheat fault)
-        # power-up: motors hold their length (l = 0), the arm hangs on its elastic elements
-        modes, values = ("length",) * m, np.zeros(m)
-        eq = model.equilibrium(list(modes), values)
+        # power-up: motors hold their length, the arm hangs on its elastic elements
+        theta, values = power_up(model)
+        modes = ("length",) * m
+        eq = model.equilibrium(list(modes), values, theta0=theta)
         self.state = PlantState(np.asarray(eq.theta, float), np.asarray(eq.tension, float),
                                 np.asarray(eq.length, float), self.ambient_c.copy(),
                                 np.zeros(m))
@@ -143,6 +177,16 @@ class Plant:
         """Hold (or let go of) the arm at its home pose, as a person zeroing it would."""
         self._solver.home = on
         self._solver.request(*self._command)
+
+    @property
+    def failure(self) -> str | None:
+        """Why the simulated arm stopped following its commands (None: it follows them)."""
+        return self._solver.failure
+
+    def at_rest(self) -> bool:
+        """The arm is on its way to the equilibrium of the commands in force, which it never
+        overshoots: a quasi-static arm has no swing to wait for once the solve is done."""
+        return self._solver.idle()
 
     def settled(self, tol: float = 1e-4) -> bool:
         """Solver idle and the state within ``tol`` (m, rad) of its target."""
