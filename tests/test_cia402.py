@@ -402,3 +402,51 @@ def test_canopen_ids_that_collide_with_another_board_are_refused(tmp_path):
     with pytest.raises(IdCollision, match=r"muscle m\d \(board \d+, .*\) and muscle m\d "
                        r"\(board \d+, .*\) both use CAN id\(s\) 0x18"):
         check_ids(robot, protocols_for(robot))
+
+
+def test_an_sdo_timeout_while_the_host_could_not_run_is_asked_again(monkeypatch):
+    """A timeout during which this process was starved (a loaded host: the answer may have
+    come while nobody read it) is asked again; one while the host could run is the drive's
+    silence, named at once."""
+    from types import SimpleNamespace
+
+    from canopen.sdo import SdoCommunicationError
+
+    from pimbs_hw.protocol import cia402
+
+    proto = object.__new__(cia402.Cia402Protocol)
+    proto.nodes = [SimpleNamespace(id=3)]
+    proto.drive = SimpleNamespace(eds=SimpleNamespace(name="drive.eds"))
+    proto.specs = [SimpleNamespace(name="m0")]
+    proto.board_ids = [3]
+    calls = []
+
+    def answers_second_time():
+        calls.append(1)
+        if len(calls) == 1:
+            raise SdoCommunicationError("No SDO response received")
+        return 7
+
+    class Lag:
+        def __init__(self, starved_s):
+            self.starved_s = starved_s
+
+        def starved(self, t0, t1):
+            return self.starved_s
+
+    monkeypatch.setattr(cia402, "host_lag", lambda: Lag(0.2))
+    assert proto._sdo(0, answers_second_time) == 7 and len(calls) == 2
+
+    def never():
+        calls.append(1)
+        raise SdoCommunicationError("No SDO response received")
+
+    calls.clear()
+    with pytest.raises(BoardSilent, match="no SDO answer from CANopen node 3"):
+        proto._sdo(0, never)  # a host starved every time: asked again, then named
+    assert len(calls) == cia402.SDO_STALL_RETRIES + 1
+    calls.clear()
+    monkeypatch.setattr(cia402, "host_lag", lambda: Lag(0.0))
+    with pytest.raises(BoardSilent):
+        proto._sdo(0, answers_second_time)  # the host could run: the drive was silent
+    assert len(calls) == 1

@@ -45,6 +45,7 @@ from canopen.emcy import EmcyError
 from canopen.nmt import NMT_STATES
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
+from pimbs_hw.host_lag import host_lag
 from pimbs_hw.protocol import cia402_states as sm
 from pimbs_hw.protocol.board import BoardLimits, BoardProtocol, Capabilities, RawFrame, Update
 from pimbs_hw.protocol.canopen_link import SYNC_ID, SyncProducer, attached, start_sync
@@ -54,6 +55,11 @@ from pimbs_hw.safety import BoardFault, BoardSilent, Overheat, SafetyStop, Watch
 
 NAME = "cia402"
 SDO_TIMEOUT_S = 0.5  # per request; a drive on a loaded bus answers within milliseconds
+# An SDO exchange that timed out while this process could not run for at least this long is
+# asked again (at most SDO_STALL_RETRIES times): the answer may have come while nobody read
+# it. A drive that does not answer a host that could run is silent at the first timeout.
+SDO_STALL_S = 0.05
+SDO_STALL_RETRIES = 3
 STATE_WAIT_S = 1.0  # per state machine step
 HEARTBEAT_MISSES = 3  # producer periods without a heartbeat = the drive is lost
 OPERATIONAL = 5  # NMT state code in a heartbeat
@@ -185,18 +191,24 @@ class Cia402Protocol(BoardProtocol):
         return {"muscle": self.specs[k].name, "board_id": self.board_ids[k]}
 
     def _sdo(self, k: int, call):
-        """One SDO exchange; a silent or refusing drive is a named stop."""
-        node = self.nodes[k]
-        try:
-            return call()
-        except SdoCommunicationError as exc:
-            raise BoardSilent(f"no SDO answer from CANopen node {node.id} "
-                              f"({self.drive.eds.name}): {exc}; is the drive powered, its "
-                              "node id right and the bitrate the drive's?",
-                              **self._where(k)) from None
-        except SdoAbortedError as exc:
-            raise BoardFault(f"CANopen node {node.id} refused an SDO access "
-                             f"({self.drive.eds.name}): {exc}", **self._where(k)) from None
+        """One SDO exchange; a silent or refusing drive is a named stop. A timeout during
+        which this process itself could not run is not the drive's silence: asked again."""
+        node, lag, retries = self.nodes[k], host_lag(), 0
+        while True:
+            t0 = time.monotonic()
+            try:
+                return call()
+            except SdoCommunicationError as exc:
+                if retries < SDO_STALL_RETRIES and lag.starved(t0, time.monotonic()) >= SDO_STALL_S:
+                    retries += 1
+                    continue
+                raise BoardSilent(f"no SDO answer from CANopen node {node.id} "
+                                  f"({self.drive.eds.name}): {exc}; is the drive powered, its "
+                                  "node id right and the bitrate the drive's?",
+                                  **self._where(k)) from None
+            except SdoAbortedError as exc:
+                raise BoardFault(f"CANopen node {node.id} refused an SDO access "
+                                 f"({self.drive.eds.name}): {exc}", **self._where(k)) from None
 
     def _write(self, k: int, ref: ObjectRef, value: int) -> None:
         var = self._var(k, ref.index, ref.subindex)
