@@ -30,6 +30,7 @@ from population_runner import SPLITS, read_manifest  # noqa: E402
 
 from pimbs_learn.data import load_samples, split  # noqa: E402
 from pimbs_learn.noise import estimate_noise  # noqa: E402
+from pimbs_learn.selfcheck import SelfCheck  # noqa: E402
 
 
 def main() -> None:
@@ -63,7 +64,7 @@ def main() -> None:
                         "torque_rms": e.torque_rms, "length_rms": e.length_rms,
                         "loo_with": e.loo_with_torque.tolist(),
                         "loo_without": e.loo_without_torque.tolist(),
-                        "ratio": float(e.loo_with_torque.sum() / e.loo_without_torque.sum()),
+                        "ratio": SelfCheck.from_estimate(e).ratio,  # what the check compares
                         "wins": float(np.mean(e.loo_with_torque < e.loo_without_torque)),
                         "seconds": round(time.perf_counter() - t0, 2)}
                 with a.out.open("a") as fh:

@@ -210,3 +210,14 @@ def _loo_length_sse(cov: torch.Tensor, y: torch.Tensor, sample: torch.Tensor,
         err = torch.linalg.solve(prec[idx][:, idx], py[idx])
         out[i] = float((err[is_len[idx]] ** 2).sum())
     return out
+
+
+def noise_of(samples, seed: int = 0) -> NoiseEstimate | None:
+    """:func:`estimate_noise` of a sample set (anything with ``theta``, ``tension``,
+    ``length`` and ``tau``), or None where it is degenerate for the Gaussian process. The
+    automatic weight's floor and the self-check both read this one fit."""
+    try:
+        return estimate_noise(samples.theta, samples.tension, samples.length, samples.tau,
+                              seed=seed)
+    except torch.linalg.LinAlgError:
+        return None

@@ -27,7 +27,7 @@ from pimbs_learn.adam import FusedAdam
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
 from pimbs_learn.model import Params, hidden_layers, init_params, output_length
-from pimbs_learn.noise import estimate_noise
+from pimbs_learn.noise import noise_of
 from pimbs_learn.objective import ELASTIC_GAIN, Batch, elastic_length, objective_and_grads
 from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult, as_tensor
@@ -66,10 +66,8 @@ def torque_noise(run: Run) -> float:
 
 
 def _evidence_noise(t, seed: int) -> float:
-    try:
-        return estimate_noise(t.theta, t.tension, t.length, t.tau, seed=seed).torque_rms
-    except torch.linalg.LinAlgError:
-        return float("nan")
+    e = noise_of(t, seed)
+    return float("nan") if e is None else e.torque_rms
 
 
 def _stack(arrays: list[np.ndarray], dtype: torch.dtype, dev: torch.device) -> torch.Tensor:
