@@ -15,6 +15,13 @@ Fetches nothing: point it at a checkout of MyoSuite's models (https://github.com
    robot MODEL`` and ``pimbs simulate --robot MODEL --samples 5``, run as a user runs them;
    per model: works, or the one line the command ended with. ``--quick`` skips the
    simulations.
+3. **A short collection on the model itself** (every model ``simulate`` accepts, with the map
+   it accepted): ``pimbs collect --port virtual --robot MODEL --plant PLANT --samples 5`` on
+   the simulated boards with MuJoCo integrating the plant, first the model itself as the
+   plant, then the model with every tendon path site moved 1 mm in a seeded direction (a
+   real arm always differs from its description by millimetres): rows kept of those
+   planned, or the one line the collection stopped with. A stop fails the benchmark where
+   the plant is the model itself.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -39,6 +47,7 @@ from pimbs_calibration.mjcf import MjcfError, compile_model, joint_couplings  # 
 from tests.mujoco_truth import coupled_truth  # noqa: E402
 
 MUST_AGREE = ("arm/myoarm.xml", "leg/myolegs.xml")
+ONE_BUS = "so one bus carries no such board"  # more muscles than one bus has board ids
 TOLERANCE = 1e-9
 
 
@@ -109,18 +118,57 @@ def run_pimbs(args: list[str], timeout_s: float) -> tuple[bool, str, float]:
     return res.returncode == 0, last, time.perf_counter() - start
 
 
-def simulate(xml: Path, tmp: Path, timeout_s: float) -> str:
+def simulate(xml: Path, tmp: Path, timeout_s: float) -> tuple[str, str | None]:
     """``pimbs simulate --samples 5`` (ATL-Map, the default): works, or its last line; where
-    the ATL-Map fails but the robot itself is usable, also the AL-Map's outcome."""
+    the ATL-Map fails but the robot itself is usable, also the AL-Map's outcome. Second: the
+    map that worked (None: neither)."""
     out = tmp / (xml.stem + ".parquet")
     base = ["simulate", "--robot", str(xml), "--samples", "5", "--out", str(out), "--force"]
     ok, said, took = run_pimbs(base, timeout_s)
     if ok:
-        return f"works ({took:.0f} s)"
+        return f"works ({took:.0f} s)", "atl"
     if "cannot be turned both ways" in said or "field '" in said:
-        return said  # the description itself: the AL-Map says the same
+        return said, None  # the description itself: the AL-Map says the same
     ok_al, said_al, took_al = run_pimbs([*base, "--map", "al"], timeout_s)
-    return f"{said} [--map al: {f'works ({took_al:.0f} s)' if ok_al else said_al}]"
+    return (f"{said} [--map al: {f'works ({took_al:.0f} s)' if ok_al else said_al}]",
+            "al" if ok_al else None)
+
+
+def moved_plant(xml: Path, shift_m: float = 1e-3, seed: int = 0) -> Path:
+    """The model with every tendon path site moved ``shift_m`` in a seeded direction, written
+    beside it (so its includes and meshes resolve as the model's do)."""
+    import mujoco
+
+    spec = mujoco.MjSpec.from_file(str(xml))
+    model = spec.compile()
+    names = sorted({mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SITE, int(i))
+                    for t, i in zip(model.wrap_type, model.wrap_objid, strict=True)
+                    if t == mujoco.mjtWrap.mjWRAP_SITE} - {None})
+    rng = np.random.default_rng(seed)
+    for name in names:
+        direction = rng.normal(size=3)
+        site = spec.site(name)
+        site.pos = np.asarray(site.pos) + shift_m * direction / np.linalg.norm(direction)
+    out = xml.with_name(f"{xml.stem}.plant-1mm.xml")
+    out.write_text(spec.to_xml())
+    return out
+
+
+def collect(xml: Path, plant: Path, map_kind: str, samples: int, tmp: Path,
+            timeout_s: float) -> tuple[bool, str]:
+    """``pimbs collect`` of ``samples`` poses of ``xml`` on the simulated boards, MuJoCo
+    integrating ``plant``: (finished without a stop, "K of N rows (s)" or its last line)."""
+    import pyarrow.parquet as pq
+
+    out = tmp / f"{plant.stem}.collect.parquet"
+    out.unlink(missing_ok=True)
+    ok, said, took = run_pimbs(["collect", "--port", "virtual", "--robot", str(xml), "--plant",
+                                str(plant), "--samples", str(samples), "--map", map_kind,
+                                "--out", str(out)], timeout_s)
+    if not ok:
+        return False, said
+    rows = pq.read_metadata(out).num_rows if out.is_file() else 0
+    return True, f"{rows} of {samples} rows ({took:.0f} s)"
 
 
 def _cell(text: str, width: int = 500) -> str:
@@ -134,7 +182,9 @@ def main() -> int:
                         help="a checkout of https://github.com/MyoHub/myo_sim")
     parser.add_argument("--poses", type=int, default=50,
                         help="random poses per coupled model (besides the range bounds)")
-    parser.add_argument("--quick", action="store_true", help="no simulate runs")
+    parser.add_argument("--quick", action="store_true", help="no simulate or collect runs")
+    parser.add_argument("--samples", type=int, default=5, help="poses per short collection")
+    parser.add_argument("--only", nargs="*", help="only these models (paths in the checkout)")
     parser.add_argument("--timeout", type=float, default=600.0, help="s per command")
     args = parser.parse_args()
     root = args.myo_sim.expanduser().resolve()
@@ -167,18 +217,32 @@ def main() -> int:
         if rel in MUST_AGREE and max(d["length"], d["jacobian"], d["gravity"]) > TOLERANCE:
             failed = True
 
-    print("\n## Every model: `pimbs robot` and `pimbs simulate --samples 5`\n")
-    print("| model | MuJoCo compiles | robot | simulate |")
-    print("|---|---|---|---|")
+    print(f"\n## Every model: `pimbs robot`, `pimbs simulate --samples 5`, and "
+          f"`pimbs collect --samples {args.samples} --plant` on itself and 1 mm off\n")
+    print("| model | MuJoCo compiles | robot | simulate | collect, plant = model | "
+          "collect, plant 1 mm off |")
+    print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
-        for xml in models(root):
-            rel = str(xml.relative_to(root))
+        copy = Path(tmp) / "myo_sim"  # the moved plants are written beside their models
+        shutil.copytree(root, copy, ignore=shutil.ignore_patterns(".git"))
+        for xml in models(copy):
+            rel = str(xml.relative_to(copy))
+            if args.only and rel not in args.only:
+                continue
             ok, said, took = run_pimbs(["robot", str(xml)], args.timeout)
             robot = f"works ({took:.0f} s)" if ok else said
-            sim = "-" if args.quick else simulate(xml, Path(tmp), args.timeout)
-            print(f"| {rel} | {facts(xml)} | {_cell(robot)} | {_cell(sim)} |"
-                  .replace(str(root) + "/", ""))
-            failed |= "TRACEBACK" in robot or "TRACEBACK" in sim
+            sim, map_kind = ("-", None) if args.quick else simulate(xml, Path(tmp),
+                                                                    args.timeout)
+            same = moved = "-"
+            if map_kind:
+                ok_same, same = collect(xml, xml, map_kind, args.samples, Path(tmp),
+                                        args.timeout)
+                _, moved = collect(xml, moved_plant(xml), map_kind, args.samples, Path(tmp),
+                                   args.timeout)
+                failed |= not ok_same and ONE_BUS not in same  # refused before it starts
+            print(f"| {rel} | {facts(xml)} | {_cell(robot)} | {_cell(sim)} | {_cell(same)} | "
+                  f"{_cell(moved)} |".replace(str(copy) + "/", "").replace(tmp + "/", ""))
+            failed |= any("TRACEBACK" in c for c in (robot, sim, same, moved))
     return 1 if failed else 0
 
 

@@ -12,6 +12,12 @@ user with the recording, its clean reference and the robot description would
 * its **null twin**: the same arm, sensors, noise and seed with the concealed effects (and
   on MuJoCo the plant file's changes) removed, written into ``OUT/twins`` — the population
   alone holds too few recordings without effects to measure false alarms;
+* with ``--kinds narrow narrow-null``, a **narrow recording** of the same arm (and its null
+  twin): a user's first, quick session — ``NARROW_ROWS`` poses drawn in the middle
+  ``NARROW_BAND`` of every joint's range, every muscle held at its own floor (the AL-Map) —
+  which excites little and so leaves effects confounded that the population's 230 wide ATL
+  rows separate; this is where the confounded answers and their separating poses are
+  measured (the population's own recordings were never called "either");
 * for every recording the diagnosis calls confounded ("either A or B"), the **separating
   poses** it proposes (``--poses-out``), collected on the same arm with the same concealed
   effects and sensors (PIMBS's simulator, or MuJoCo as the plant with the same plant file)
@@ -57,6 +63,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import itertools
 import json
 import sys
 import time
@@ -78,6 +85,11 @@ AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that i
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
 REFERENCE_NOISE = 10_000  # a reference's noise seed: its recording's seed + this
+# The narrow session, fixed before any narrow recording was diagnosed: 100 poses in the
+# middle quarter of every joint's range, the AL-Map's floors, its own seed stream.
+NARROW_ROWS = 100
+NARROW_BAND = 0.25
+NARROW_SEED = 2000  # the narrow session's seed: arm seed + this
 VERSION = 1         # of what this script writes
 
 
@@ -125,20 +137,21 @@ def description_mjcf(line: dict[str, Any], pop: Path) -> Path:
 
 
 def record(line: dict[str, Any], pop: Path, cond, plant: Path | None, seed: int,
-           poses=None) -> tuple[dict, dict]:
+           poses=None, map_kind: str | None = None) -> tuple[dict, dict]:
     """(columns, metadata) of a recording of the arm under ``cond`` on its simulator."""
     from pimbs_arm.model import ArmModel
     from pimbs_sim.simulate import simulate
 
     arm = ArmModel.load(pop / line["description"])
     n = line["samples"] if poses is None else len(poses.poses)
+    map_kind = map_kind or line["map"]
     if line["simulator"] == "ours":
-        data, meta = simulate(arm, n, line["map"], seed=seed, effects=cond.sim_effects(),
+        data, meta = simulate(arm, n, map_kind, seed=seed, effects=cond.sim_effects(),
                               noise=cond.noise, sensors=cond.sensors, poses=poses)
     else:
         from pimbs_hw.mock.mujoco_recording import record_plant
 
-        data, meta, _ = record_plant(arm, plant, n, line["map"], seed=seed,
+        data, meta, _ = record_plant(arm, plant, n, map_kind, seed=seed,
                                      effects=cond.sim_effects(), sensors=cond.sensors,
                                      noise=cond.noise, poses=poses)
     meta["created"] = "2026-01-01T00:00:00Z"
@@ -166,7 +179,7 @@ def null_twin(line: dict[str, Any], pop: Path, twins: Path) -> Path:
 
 
 def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
-                 poses=None, stem: str | None = None) -> Path:
+                 poses=None, stem: str | None = None, map_kind: str | None = None) -> Path:
     """The clean reference of the recording made at ``seed`` (of ``poses``, or of the seed's
     plan): the description on PIMBS's simulator, the same poses, noise of its own."""
     from pimbs_arm.model import ArmModel
@@ -182,12 +195,67 @@ def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
     folder.mkdir(parents=True, exist_ok=True)
     arm = ArmModel.load(pop / line["description"])
     n = line["samples"] if poses is None else len(poses.poses)
-    data, meta = simulate(arm, n, line["map"], seed=seed, noise_seed=seed + REFERENCE_NOISE,
-                          poses=poses)
+    data, meta = simulate(arm, n, map_kind or line["map"], seed=seed,
+                          noise_seed=seed + REFERENCE_NOISE, poses=poses)
     meta["created"] = "2026-01-01T00:00:00Z"
     write_recording(path, data, meta)
     stamp.write_text(key)
     return path
+
+
+def narrow_plan(line: dict[str, Any], pop: Path):
+    """The narrow session's poses (module docstring): seeded, each one held by the muscles at
+    their own floors; a draw that cannot be held is drawn again."""
+    import numpy as np
+
+    from pimbs_arm.model import ArmModel
+    from pimbs_arm.poses import PosePlan, feasible
+
+    arm = ArmModel.load(pop / line["description"])
+    lo, hi = arm.joint_range.T
+    mid, half = (lo + hi) / 2, (hi - lo) * NARROW_BAND / 2
+    f_floor = np.array([m.f_floor for m in arm.robot.muscles])
+    rng = np.random.default_rng([line["seed"], NARROW_SEED])
+    poses: list[np.ndarray] = []
+    for _ in range(50 * NARROW_ROWS):
+        theta = rng.uniform(mid - half, mid + half)
+        if feasible(arm, theta, f_floor):
+            poses.append(theta)
+            if len(poses) == NARROW_ROWS:
+                break
+    else:
+        raise RuntimeError(f"{line['arm']}: fewer than {NARROW_ROWS} holdable poses in the "
+                           f"middle {NARROW_BAND:.0%} of the ranges")
+    floors = np.tile(f_floor, (NARROW_ROWS, 1))
+    return PosePlan(poses=np.array(poses), floors=floors, drawn_floors=np.zeros_like(floors),
+                    replaced=())
+
+
+def narrow(line: dict[str, Any], pop: Path, twins: Path, effects: bool
+           ) -> tuple[Path, Any, Path | None, Path]:
+    """The narrow recording (``effects``: with the arm's concealed truth, else its null
+    twin), cached like the twins; (recording, conditions, plant, reference)."""
+    from pimbs_recording.format import write_recording
+
+    kind = "narrow" if effects else "narrow-null"
+    cond = conditions(line["truth"], effects=effects)
+    plant = None
+    if line["simulator"] == "mujoco":
+        plant = pop / line["plant"] if effects else description_mjcf(line, pop)
+    seed = line["seed"] + NARROW_SEED
+    plan = narrow_plan(line, pop)
+    path = twins / f"{line['arm']}.{kind}.parquet"
+    key = hashlib.sha256(json.dumps([VERSION, line["key"], kind, NARROW_ROWS, NARROW_BAND])
+                         .encode()).hexdigest()[:16]
+    stamp = path.with_suffix(".key")
+    if not (path.is_file() and stamp.is_file() and stamp.read_text() == key):
+        twins.mkdir(parents=True, exist_ok=True)
+        data, meta = record(line, pop, cond, plant, seed, plan, map_kind="al")
+        write_recording(path, data, meta)
+        stamp.write_text(key)
+    reference = reference_of(line, pop, twins, seed, plan, f"{line['arm']}.{kind}",
+                             map_kind="al")
+    return path, cond, plant, reference
 
 
 PROBES = ("plant_tendon_friction", "plant_joint_friction", "plant_joint_stiffness", "routing")
@@ -269,12 +337,15 @@ def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: 
         plant = pop / line["plant"] if mujoco else None
     elif kind == "probe":
         real, cond, plant = probe(line, pop, twins)
+    elif kind in ("narrow", "narrow-null"):
+        real, cond, plant, reference = narrow(line, pop, twins, kind == "narrow")
     else:
         real, cond = null_twin(line, pop, twins), conditions(line["truth"], effects=False)
         plant = description_mjcf(line, pop) if mujoco else None
     truth = list(cond.effects)
     t_made = time.process_time() - t_cpu
-    reference = reference_of(line, pop, twins, line["seed"])
+    if not kind.startswith("narrow"):
+        reference = reference_of(line, pop, twins, line["seed"])
     c0 = time.process_time()
     result, _ = diagnose(real, reference, robot=robot)
     said = answer(result)
@@ -329,7 +400,8 @@ def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: di
                                             for a in result["ambiguous"]
                                             if a.get("separating_poses")],
             **said, "outcome": outcome(said, want),
-            "resolved": outcome(said, want) in ("exact", "nothing", "unexplained"),
+            "resolved": outcome(said, want) in (("exact",) if want
+                                                else ("nothing", "unexplained")),
             "cpu_s_record": round(c1 - c0, 2), "cpu_s": round(time.process_time() - c1, 2)}
 
 
@@ -338,70 +410,86 @@ ORDER_EFFECTS = ("exact", "wrong", "missed", "either", "unexplained")
 ORDER_NULLS = ("nothing", "unexplained", "named")
 
 
+SESSIONS = {"population": ("recording", "null"), "narrow": ("narrow", "narrow-null")}
+
+
 def summary(lines: list[dict[str, Any]]) -> str:
-    """Confusion tables per simulator (markdown); the development probes apart."""
+    """Confusion tables per session and simulator (markdown); the development probes apart."""
     out = []
+    for session, kinds in SESSIONS.items():
+        rows = [r for r in lines if r["kind"] in kinds]
+        for sim in ("ours", "mujoco"):
+            part = [r for r in rows if r["simulator"] == sim]
+            if part:
+                out.append(_tables(part, sim, session))
     probes = [r for r in lines if r["kind"] == "probe"]
-    lines = [r for r in lines if r["kind"] != "probe"]
-    for sim in ("ours", "mujoco"):
-        rows = [r for r in lines if r["simulator"] == sim]
-        if not rows:
-            continue
-        title = "PIMBS's simulator" if sim == "ours" else "MuJoCo as the plant"
-        out.append(f"\n### {title} ({len(rows)} recordings)\n")
-        out.append("| recordings with effects | n | " + " | ".join(ORDER_EFFECTS)
-                   + " | truth among the options |")
-        out.append("|---|---|" + "---|" * (len(ORDER_EFFECTS) + 1))
-        for label, keep in (("single effect", lambda r: len(r["targets"]) == 1),
-                            ("two effects", lambda r: len(r["targets"]) >= 2),
-                            ("all", lambda r: len(r["targets"]) >= 1)):
-            group = [r for r in rows if keep(r)]
-            if not group:
-                continue
-            c = Counter(r["outcome"] for r in group)
-            either = [r for r in group if r["outcome"] == "either"]
-            out.append(f"| {label} | {len(group)} | "
-                       + " | ".join(_share(c[k], len(group)) for k in ORDER_EFFECTS)
-                       + f" | {sum(r['truth_in_either'] for r in either)}/{len(either)} |")
-        out.append("\n| recordings without effects | n | " + " | ".join(ORDER_NULLS) + " |")
-        out.append("|---|---|" + "---|" * len(ORDER_NULLS))
-        for label, keep in (("null twins", lambda r: r["kind"] == "null"),
-                            ("population, none concealed",
-                             lambda r: r["kind"] == "recording" and not r["nuisances"]),
-                            ("population, plant nuisances only",
-                             lambda r: r["kind"] == "recording" and r["nuisances"]),
-                            ("all", lambda r: True)):
-            group = [r for r in rows if not r["targets"] and keep(r)]
-            if not group:
-                continue
-            c = Counter(r["outcome"] for r in group)
-            out.append(f"| {label} | {len(group)} | "
-                       + " | ".join(_share(c[k], len(group)) for k in ORDER_NULLS) + " |")
-        conf = [r for r in rows if r.get("settle")]
-        if conf:
-            c = Counter(r["settle"]["outcome"] for r in conf)
-            res = sum(r["settle"]["resolved"] for r in conf)
-            out.append(f"\nconfounded cases: {len(conf)}; resolved by their separating poses "
-                       f"{_share(res, len(conf))} (after: "
-                       + ", ".join(f"{k} {v}" for k, v in sorted(c.items())) + ")")
-        wrong = Counter(n for r in rows for n in r["named"] if n not in r["targets"])
-        if wrong:
-            out.append("effects named wrongly: " + ", ".join(f"{k} {v}"
-                                                          for k, v in wrong.most_common()))
-        cpu = sorted(r["cpu_s"] for r in rows)
-        out.append(f"CPU per diagnosis: median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s;"
-                   f" per recording with twin and settling: "
-                   f"{sum(r['cpu_s_total'] for r in rows) / len(rows):.1f} s on average")
     if probes:
-        out.append("\n### Development probes: one plant-file change on MuJoCo\n")
-        out.append("| arm | concealed | counts as | named | either | outcome | settled |")
-        out.append("|---|---|---|---|---|---|---|")
-        for r in sorted(probes, key=lambda r: r["arm"]):
-            e = r["truth"][0]
-            out.append(f"| {r['arm']} | {e['name']} {e['magnitude']:g} | "
-                       f"{', '.join(r['targets']) or 'nuisance'} | {', '.join(r['named']) or '–'}"
-                       f" | {' / '.join(' or '.join(x) for x in r['either']) or '–'} | "
-                       f"{r['outcome']} | {r.get('settle', {}).get('outcome', '–')} |")
+        out.append(_probes(probes))
+    return "\n".join(out)
+
+
+def _tables(rows: list[dict[str, Any]], sim: str, session: str) -> str:
+    """The confusion tables of one session's recordings on one simulator."""
+    title = "PIMBS's simulator" if sim == "ours" else "MuJoCo as the plant"
+    what = "" if session == "population" else f", {session} session"
+    out = [f"\n### {title}{what} ({len(rows)} recordings)\n"]
+    out.append("| recordings with effects | n | " + " | ".join(ORDER_EFFECTS)
+               + " | truth among the options |")
+    out.append("|---|---|" + "---|" * (len(ORDER_EFFECTS) + 1))
+    for label, keep in (("single effect", lambda r: len(r["targets"]) == 1),
+                        ("two effects", lambda r: len(r["targets"]) >= 2),
+                        ("all", lambda r: len(r["targets"]) >= 1)):
+        group = [r for r in rows if keep(r)]
+        if not group:
+            continue
+        c = Counter(r["outcome"] for r in group)
+        either = [r for r in group if r["outcome"] == "either"]
+        out.append(f"| {label} | {len(group)} | "
+                   + " | ".join(_share(c[k], len(group)) for k in ORDER_EFFECTS)
+                   + f" | {sum(r['truth_in_either'] for r in either)}/{len(either)} |")
+    out.append("\n| recordings without effects | n | " + " | ".join(ORDER_NULLS) + " |")
+    out.append("|---|---|" + "---|" * len(ORDER_NULLS))
+    for label, keep in (("null twins", lambda r: r["kind"].endswith("null")),
+                        (f"{session}, none concealed",
+                         lambda r: not r["kind"].endswith("null") and not r["nuisances"]),
+                        (f"{session}, plant nuisances only",
+                         lambda r: not r["kind"].endswith("null") and r["nuisances"]),
+                        ("all", lambda r: True)):
+        group = [r for r in rows if not r["targets"] and keep(r)]
+        if not group:
+            continue
+        c = Counter(r["outcome"] for r in group)
+        out.append(f"| {label} | {len(group)} | "
+                   + " | ".join(_share(c[k], len(group)) for k in ORDER_NULLS) + " |")
+    conf = [r for r in rows if r.get("settle")]
+    if conf:
+        c = Counter(r["settle"]["outcome"] for r in conf)
+        res = sum(r["settle"]["resolved"] for r in conf)
+        out.append(f"\nconfounded cases: {len(conf)}; resolved by their separating poses "
+                   f"{_share(res, len(conf))} (after: "
+                   + ", ".join(f"{k} {v}" for k, v in sorted(c.items())) + ")")
+    wrong = Counter(n for r in rows for n in r["named"] if n not in r["targets"])
+    if wrong:
+        out.append("effects named wrongly: " + ", ".join(f"{k} {v}"
+                                                      for k, v in wrong.most_common()))
+    cpu = sorted(r["cpu_s"] for r in rows)
+    out.append(f"CPU per diagnosis: median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s;"
+               f" per recording with twin and settling: "
+               f"{sum(r['cpu_s_total'] for r in rows) / len(rows):.1f} s on average")
+    return "\n".join(out)
+
+
+def _probes(probes: list[dict[str, Any]]) -> str:
+    """The development probes, one row each."""
+    out = ["\n### Development probes: one plant-file change on MuJoCo\n",
+           "| arm | concealed | counts as | named | either | outcome | settled |",
+           "|---|---|---|---|---|---|---|"]
+    for r in sorted(probes, key=lambda r: r["arm"]):
+        e = r["truth"][0]
+        out.append(f"| {r['arm']} | {e['name']} {e['magnitude']:g} | "
+                   f"{', '.join(r['targets']) or 'nuisance'} | {', '.join(r['named']) or '–'}"
+                   f" | {' / '.join(' or '.join(x) for x in r['either']) or '–'} | "
+                   f"{r['outcome']} | {r.get('settle', {}).get('outcome', '–')} |")
     return "\n".join(out)
 
 
@@ -410,10 +498,10 @@ def _share(k: int, n: int) -> str:
 
 
 def bars(lines: list[dict[str, Any]]) -> str:
-    """The done bar, per simulator."""
+    """The done bar, per session and simulator."""
     out = []
-    for sim in ("ours", "mujoco"):
-        rows = [r for r in lines if r["simulator"] == sim and r["kind"] != "probe"]
+    for (session, kinds), sim in itertools.product(SESSIONS.items(), ("ours", "mujoco")):
+        rows = [r for r in lines if r["simulator"] == sim and r["kind"] in kinds]
         eff = [r for r in rows if r["targets"]]
         nul = [r for r in rows if not r["targets"]]
         conf = [r for r in rows if r.get("settle")]
@@ -423,8 +511,9 @@ def bars(lines: list[dict[str, Any]]) -> str:
         wrong = sum(r["outcome"] == "wrong" for r in eff)
         named = sum(r["outcome"] == "named" for r in nul)
         res = sum(r["settle"]["resolved"] for r in conf)
-        out.append(f"{sim}: exact {exact}/{len(eff)} (bar ≥ 90 %), wrong {wrong}/{len(eff)} "
-                   f"(≤ 5 %), nulls naming something {named}/{len(nul)} (≤ 1 in 20), "
+        out.append(f"{session}, {sim}: exact {exact}/{len(eff)} (bar ≥ 90 %), wrong "
+                   f"{wrong}/{len(eff)} (≤ 5 %), nulls naming something {named}/{len(nul)} "
+                   "(≤ 1 in 20), "
                    f"confounded resolved {res}/{len(conf)} (≥ 80 %)")
     return "\n".join(out)
 
@@ -446,9 +535,11 @@ def main() -> None:
                     "share them)")
     ap.add_argument("--arms", nargs="*", help="only these arms (armNNN) of the split")
     ap.add_argument("--kinds", nargs="*", default=["recording", "null"],
-                    choices=["recording", "null", "probe"],
+                    choices=["recording", "null", "probe", "narrow", "narrow-null"],
                     help="probe: on the development split's MuJoCo arms, one plant-file "
-                    "change alone (the population rarely draws them)")
+                    "change alone (the population rarely draws them); narrow, narrow-null: "
+                    "a short session in the middle of the ranges at the AL-Map's floors, "
+                    "with and without the concealed effects")
     ap.add_argument("--no-settle", action="store_true", help="skip the separating poses")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--summary", type=Path, help="print the tables of a results file")
@@ -472,8 +563,8 @@ def main() -> None:
         arms = [d for d in arms if d["arm"] in set(a.arms)]
     done = {(r["arm"], r["kind"]) for r in read_lines(results)}
     todo = [(d, k) for d in arms for k in a.kinds
-            if (d["arm"], k) not in done and (k == "recording" or (
-                k == "null" and d["truth"]["effects"]) or (
+            if (d["arm"], k) not in done and (k in ("recording", "narrow") or (
+                k in ("null", "narrow-null") and d["truth"]["effects"]) or (
                 k == "probe" and d["simulator"] == "mujoco"))]
     todo.sort(key=lambda t: t[0]["simulator"] != "mujoco")  # the slow ones first
     print(f"{len(arms)} arms of the {a.split} split; {len(todo)} recordings to diagnose, "
