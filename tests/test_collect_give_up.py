@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import warnings
 
 import numpy as np
 import pytest
 
 from pimbs_arm.model import ArmModel
 from pimbs_hw.collection.link import LoadGuard, Overload, Reading
-from pimbs_hw.collection.move import MoveConfig
+from pimbs_hw.collection.move import MoveConfig, release
 from pimbs_hw.collection.plan import CollectionPlan
 from pimbs_hw.collection.resume import collection_meta, open_recording
 from pimbs_hw.collection.routine import LOAD_LIMIT, Collector
@@ -128,3 +129,22 @@ def test_the_guard_watches_only_while_loading():
         guard.pose = np.zeros(1)
         with pytest.raises(Overload, match="ran 0.50 rad off the pose"):
             guard.read()
+
+
+def test_releasing_a_pose_given_up_far_from_it_is_a_short_ramp(model):
+    """A pose given up mid-swing is released from lengths the model reads as a stretch whose
+    exponential tension no wire carries (a MuJoCo torso on itself: 1e15 steps, and numpy
+    could not allocate them). The ramp's tension spacing stops at f_max: it stays short,
+    finite, and still ends at the approach."""
+    target = CollectionPlan(model, 2, seed=0).target(0)
+    assert target.held.any()
+    now = Reading(length=target.approach_length - 0.05,
+                  tension=np.full(model.n_muscles, 900.0),
+                  temperature=np.full(model.n_muscles, 25.0), theta=target.theta + 0.3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow reaches the user's screen
+        ramp = release(model, now, target, MoveConfig())
+    assert 2 <= len(ramp.commands) <= 1000
+    assert all(np.isfinite(c).all() for c in ramp.commands)
+    np.testing.assert_allclose(ramp.commands[-1][target.held],
+                               target.approach_length[target.held])

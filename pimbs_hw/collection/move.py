@@ -99,9 +99,12 @@ def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.nda
     wire in a few jerks at the top, and under real dynamics (an arm with inertia and little
     damping) each jerk rings; even tension steps load it as gently as a tension command.
     """
-    h = model.h_geom(theta)  # a held muscle's length l pulls f(h - l), as the model sees it
-    f0 = np.where(held, model.tension_from_stretch(h - start), 0.0)
-    f1 = np.where(held, model.tension_from_stretch(h - end), 0.0)
+    # A held muscle's length l pulls f(h - l), as the model sees it, at most f_max: a length
+    # read while the arm is far from theta (a pose given up mid-swing) gives a stretch whose
+    # exponential tension no wire carries, and steps spaced in it would never end.
+    h, cap = model.h_geom(theta), model.stretch(model.f_max)
+    f0 = np.where(held, model.tension_from_stretch(np.minimum(h - start, cap)), 0.0)
+    f1 = np.where(held, model.tension_from_stretch(np.minimum(h - end, cap)), 0.0)
     s0, s1 = model.stretch(f0), model.stretch(f1)
     moving = held & (np.abs(s1 - s0) > 1e-12)
 
