@@ -68,6 +68,7 @@ import json
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -159,23 +160,30 @@ def record(line: dict[str, Any], pop: Path, cond, plant: Path | None, seed: int,
     return data, meta
 
 
-def null_twin(line: dict[str, Any], pop: Path, twins: Path) -> Path:
-    """The arm's recording with nothing concealed (cached by its settings)."""
+def cached(path: Path, settings: list[Any], make: Callable[[], tuple[dict, dict]],
+           reuse: bool = True) -> Path:
+    """``path``, the recording ``make()`` returns (columns, metadata), written unless it is
+    already there for the same ``settings`` (a ``.key`` file beside it holds their hash)."""
     from pimbs_recording.format import write_recording
 
-    path = twins / f"{line['arm']}.null.parquet"
-    key = hashlib.sha256(json.dumps([VERSION, line["key"], line["sha256"]["description"]])
-                         .encode()).hexdigest()[:16]
+    key = hashlib.sha256(json.dumps([VERSION, *settings]).encode()).hexdigest()[:16]
     stamp = path.with_suffix(".key")
-    if path.is_file() and stamp.is_file() and stamp.read_text() == key:
+    if reuse and path.is_file() and stamp.is_file() and stamp.read_text() == key:
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    plant = description_mjcf(line, pop) if line["simulator"] == "mujoco" else None
-    data, meta = record(line, pop, conditions(line["truth"], effects=False), plant,
-                        line["seed"])
+    data, meta = make()
     write_recording(path, data, meta)
     stamp.write_text(key)
     return path
+
+
+def null_twin(line: dict[str, Any], pop: Path, twins: Path) -> Path:
+    """The arm's recording with nothing concealed (cached by its settings)."""
+    plant = description_mjcf(line, pop) if line["simulator"] == "mujoco" else None
+    return cached(twins / f"{line['arm']}.null.parquet",
+                  [line["key"], line["sha256"]["description"]],
+                  lambda: record(line, pop, conditions(line["truth"], effects=False), plant,
+                                 line["seed"]))
 
 
 def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
@@ -183,24 +191,19 @@ def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
     """The clean reference of the recording made at ``seed`` (of ``poses``, or of the seed's
     plan): the description on PIMBS's simulator, the same poses, noise of its own."""
     from pimbs_arm.model import ArmModel
-    from pimbs_recording.format import write_recording
     from pimbs_sim.simulate import simulate
 
-    path = folder / f"{stem or line['arm']}.reference.parquet"
-    key = hashlib.sha256(json.dumps([VERSION, line["key"], line["sha256"]["description"],
-                                     seed, REFERENCE_NOISE]).encode()).hexdigest()[:16]
-    stamp = path.with_suffix(".key")
-    if poses is None and path.is_file() and stamp.is_file() and stamp.read_text() == key:
-        return path
-    folder.mkdir(parents=True, exist_ok=True)
-    arm = ArmModel.load(pop / line["description"])
-    n = line["samples"] if poses is None else len(poses.poses)
-    data, meta = simulate(arm, n, map_kind or line["map"], seed=seed,
-                          noise_seed=seed + REFERENCE_NOISE, poses=poses)
-    meta["created"] = "2026-01-01T00:00:00Z"
-    write_recording(path, data, meta)
-    stamp.write_text(key)
-    return path
+    def make() -> tuple[dict, dict]:
+        arm = ArmModel.load(pop / line["description"])
+        n = line["samples"] if poses is None else len(poses.poses)
+        data, meta = simulate(arm, n, map_kind or line["map"], seed=seed,
+                              noise_seed=seed + REFERENCE_NOISE, poses=poses)
+        meta["created"] = "2026-01-01T00:00:00Z"
+        return data, meta
+
+    return cached(folder / f"{stem or line['arm']}.reference.parquet",
+                  [line["key"], line["sha256"]["description"], seed, REFERENCE_NOISE], make,
+                  reuse=poses is None)  # chosen poses: not part of the key, never reused
 
 
 def narrow_plan(line: dict[str, Any], pop: Path):
@@ -235,8 +238,6 @@ def narrow(line: dict[str, Any], pop: Path, twins: Path, effects: bool
            ) -> tuple[Path, Any, Path | None, Path]:
     """The narrow recording (``effects``: with the arm's concealed truth, else its null
     twin), cached like the twins; (recording, conditions, plant, reference)."""
-    from pimbs_recording.format import write_recording
-
     kind = "narrow" if effects else "narrow-null"
     cond = conditions(line["truth"], effects=effects)
     plant = None
@@ -244,15 +245,9 @@ def narrow(line: dict[str, Any], pop: Path, twins: Path, effects: bool
         plant = pop / line["plant"] if effects else description_mjcf(line, pop)
     seed = line["seed"] + NARROW_SEED
     plan = narrow_plan(line, pop)
-    path = twins / f"{line['arm']}.{kind}.parquet"
-    key = hashlib.sha256(json.dumps([VERSION, line["key"], kind, NARROW_ROWS, NARROW_BAND])
-                         .encode()).hexdigest()[:16]
-    stamp = path.with_suffix(".key")
-    if not (path.is_file() and stamp.is_file() and stamp.read_text() == key):
-        twins.mkdir(parents=True, exist_ok=True)
-        data, meta = record(line, pop, cond, plant, seed, plan, map_kind="al")
-        write_recording(path, data, meta)
-        stamp.write_text(key)
+    path = cached(twins / f"{line['arm']}.{kind}.parquet",
+                  [line["key"], kind, NARROW_ROWS, NARROW_BAND],
+                  lambda: record(line, pop, cond, plant, seed, plan, map_kind="al"))
     reference = reference_of(line, pop, twins, seed, plan, f"{line['arm']}.{kind}",
                              map_kind="al")
     return path, cond, plant, reference
@@ -270,25 +265,19 @@ def probe(line: dict[str, Any], pop: Path, twins: Path) -> tuple[Path, Any, Path
 
     import numpy as np
 
-    from pimbs_recording.format import write_recording
     from pimbs_sim.conditions import Conditions, _draw_effect, write_plant
 
     name = PROBES[(line["seed"] // 8) % len(PROBES)]
     spec = SimpleNamespace(muscles=line["muscles"], joints=line["joints"], dof=line["dof"],
                            params=line["params"])
     effect = _draw_effect(name, spec, "mujoco", np.random.default_rng([line["seed"], 8]))
-    path = twins / f"{line['arm']}.probe.parquet"
-    key = hashlib.sha256(json.dumps([VERSION, line["key"], effect]).encode()).hexdigest()[:16]
-    stamp = path.with_suffix(".key")
     twins.mkdir(parents=True, exist_ok=True)
     plant = write_plant(description_mjcf(line, pop), (effect,),
                         twins / f"{line['arm']}.probe.xml")
     base = conditions(line["truth"], effects=False)
     cond = Conditions("mujoco", base.sensors, base.noise, (effect,))
-    if not (path.is_file() and stamp.is_file() and stamp.read_text() == key):
-        data, meta = record(line, pop, cond, plant, line["seed"])
-        write_recording(path, data, meta)
-        stamp.write_text(key)
+    path = cached(twins / f"{line['arm']}.probe.parquet", [line["key"], effect],
+                  lambda: record(line, pop, cond, plant, line["seed"]))
     return path, cond, plant
 
 
