@@ -157,8 +157,7 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     if plan.scaled:
         click.echo(scaled_note(plan.scaled, samples), err=True)
-    if plant is not None:
-        _plant_notes(plant, model, settle.timeout)
+    rings = "" if plant is None else _plant_notes(plant, model, settle.timeout)
     hold = _relax_note(model, simulated)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     # one writer per recording for the whole run: a second collect (or --resume) on the same
@@ -170,17 +169,19 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             return
         with _stop_on_signals():
             _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-                 zero_m, note, plant, hold)
+                 zero_m, note, plant, hold, rings)
 
 
-def _plant_notes(plant: Path, model, wait_s: float) -> None:
+def _plant_notes(plant: Path, model, wait_s: float) -> str:
     """Before the arm moves: one line when the plant arm rings longer than a pose may settle,
     one when it must be integrated with a finer timestep than its file's (and a plant that
-    does not fit the description is refused here, before connecting)."""
-    from pimbs_hw.mock.mujoco_plant import plant_notes
+    does not fit the description is refused here, before connecting). Returns the ringing
+    line ('' if none), for a stop to name the swing as its cause."""
+    from pimbs_hw.mock.mujoco_plant import plant_notes, ringing
 
     for note in plant_notes(plant, model.robot, wait_s):
         click.echo(note, err=True)
+    return ringing(plant, model.robot).note(plant, model.robot.joints, wait_s)
 
 
 def _relax_note(model, simulated: bool) -> bool:
@@ -243,7 +244,7 @@ def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, st
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-         zero_m=None, note=None, plant=None, hold=False) -> None:
+         zero_m=None, note=None, plant=None, hold=False, rings="") -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -277,7 +278,7 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
     except SafetyStop as stop:
         stop = simulation_cause(stop, link)
         sample = collector.summary.next_sample if collector is not None else None
-        reason, error = str(stop), stop_advice(stop, plan, sample)
+        reason, error = str(stop), stop_advice(stop, plan, sample, rings)
     except RecordingWriteError as exc:
         reason = str(exc)
         error = (f"{exc}. The arm was relaxed; samples written so far are safe. "

@@ -91,12 +91,14 @@ def test_a_snagged_wire_gives_up_its_pose_and_the_collection_goes_on(model, tmp_
     assert warning.startswith("sample 2 given up: m1 pulled ")
     assert f"(load limit {LOAD_LIMIT * f_max:.0f} N)" in warning
     assert "the plan holds it at" in warning
-    # the pose was unloaded to its low-tension approach, then the arm relaxed to start over
+    # the pose was unloaded to its low-tension approach (the lengths of where the arm stood,
+    # at the pose within microns), then the arm relaxed to start over
     plan = CollectionPlan(model, 4, seed=4)
     target = plan.target(2)
     sent = [(mode, values) for i, mode, values in arm.sent if i == 2]
     _, last = [c for c in sent if c[0] == target.hold_mode][-1]
-    np.testing.assert_allclose(last[target.held], target.approach_length[target.held])
+    np.testing.assert_allclose(last[target.held], target.approach_length[target.held],
+                               atol=2e-5)
     approach = plan.holding(target.theta, target.tension).approach_tension
     np.testing.assert_allclose(last[~target.held], approach[~target.held], rtol=1e-6)
     assert sent[-1][0] == "relax"

@@ -119,6 +119,9 @@ def test_ceiling_stop_names_the_pose_and_whether_the_plan_needed_it(acme):
     pose = f"l_elbow_pitch={plan.poses[3][2]:.3f}"
     assert "sample 3" in text and pose in text and "el_flexor" in text
     assert "did not need that tension" in text and "snag" in text and "--resume" in text
+    # a simulated arm warned as barely damped: its own swing, not a snag, took the wire there
+    rings = stop_advice(stop, plan, 3, rings="warning: the plant arm.xml is barely damped")
+    assert "barely damped" in rings and "damping" in rings and "snag" not in rings
     weak = copy.copy(acme)
     weak.f_max = np.full(acme.n_muscles, 1.0)  # a wire that cannot carry what the plan asks
     plan.model = weak

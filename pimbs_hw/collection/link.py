@@ -132,6 +132,7 @@ class Overload(Exception):
 
     def __init__(self, what: str, reading: Reading, muscle: int | None = None) -> None:
         self.what, self.reading, self.muscle = what, reading, muscle
+        self.unheld: np.ndarray | None = None  # a pose on the way no tensions hold, if any
         super().__init__(what)
 
 

@@ -17,13 +17,24 @@ and commands are ramped in small increments at a limited rate:
 * ``take_up_slack``: held muscles ramp from the approach length to the QP length, the others
   from their current tension to the QP tension: first past them (the overshoot of
   ``plan.Target``), then back, so every muscle's last motion has a known direction.
+
+A length command only says where the motor goes; the arm follows as fast as its inertia and
+damping let it, and until it has, the wire between them stretches. MyoSuite's finger (joint
+damping of 0.5 N·m·s/rad on levers of 2 cm) follows a motor winding at 5 cm/s at a tenth of
+that speed, and a 2.5 kg weight on an elbow lever of 1 cm cannot be accelerated that fast at
+all: each wire reached its ceiling within a fifth of a second. So a ramp that loads a wire in
+length waits for the arm (``run_ramp``): while a length-held wire reads more than its ramp
+expects of it (``Ramp.expected``) by more than its allowance (``PACE_SHARE`` of f_max, at most
+half the way to the load limit), the command stays where it is until the arm has caught up.
+A wire that stays high however long the arm is given (a load the description does not know)
+is not waited for again on that ramp; the load limit still watches it.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -32,6 +43,15 @@ from pimbs_hw.collection.link import ArmLink, Reading
 from pimbs_hw.collection.plan import Target
 
 MOVE_KNOTS = 8  # poses along a move whose balancing tensions are solved (linear between)
+# fraction of f_max past which the routine gives a pose up (unloads it and goes on): above
+# every command of a plan (PLAN_CEILING 0.9), below the boards' ceiling, which stops it all
+LOAD_LIMIT = 0.95
+PACE_SHARE = 0.1  # of f_max: how far a length-held wire may run ahead of its arm
+PACE_MIN_SHARE = 0.02  # of f_max: the least allowance (noise, a loadcell's hysteresis)
+# s of arm time a ramp waits without the arm catching up before it takes the excess for a
+# load the description does not know, and goes on
+PACE_STALL_S = 0.5
+PACE_POLL_S = 0.005  # s between command/read cycles while a ramp waits for the arm
 
 
 @dataclass(frozen=True)
@@ -62,18 +82,33 @@ class MoveConfig:
 
 @dataclass(frozen=True)
 class Ramp:
-    """Commands in one mode, sent evenly over ``duration`` seconds."""
+    """Commands in one mode, sent evenly over ``duration`` seconds.
+
+    ``expected`` (commands, M): the tension each length-controlled muscle pulls at each
+    command once the arm is where the ramp puts it (NaN: not watched, as tension-controlled
+    muscles); ``allowance`` (commands, M): how far above it a wire may read before the ramp
+    waits for the arm (``run_ramp``); ``stall_s``: wall seconds of waiting without the arm
+    catching up, after which the ramp goes on.
+    """
 
     mode: tuple[str, ...] | str
     commands: list[np.ndarray]
     duration: float
+    expected: np.ndarray | None = None
+    allowance: np.ndarray | None = None
+    stall_s: float = PACE_STALL_S
+    unheld: np.ndarray | None = None  # (N,) the first pose on the way no tensions hold
 
 
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
-          f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None) -> Ramp:
+          f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None,
+          expect: Callable[[float], np.ndarray] | None = None) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
     to go through, limited like a tension command's (the steps and the rate) unless the arm
-    is quasi-static (``MoveConfig.quasi_static``)."""
+    is quasi-static (``MoveConfig.quasi_static``). ``expect(x)``: the tensions the
+    length-controlled muscles pull at ``x`` of the way (NaN: not watched), for the ramp to
+    wait for an arm that lags (never for a quasi-static one: it cannot lag, and an excess
+    there is a load the description does not know, which waiting never removes)."""
     tension_step = cfg.tension_step_of_f_max * f_max
     tension_rate = cfg.tension_rate_of_f_max * f_max * cfg.speed
     delta = np.abs(end - start)
@@ -86,7 +121,13 @@ def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: 
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
     commands[-1] = end
-    return Ramp(mode, commands, float(np.max(seconds)))
+    if expect is None or cfg.quasi_static:
+        return Ramp(mode, commands, float(np.max(seconds)))
+    expected = np.array([np.where(is_length, expect(x), np.nan) for x in s])
+    headroom = (LOAD_LIMIT * f_max - expected) / 2
+    allowance = np.maximum(np.minimum(PACE_SHARE * f_max, headroom), PACE_MIN_SHARE * f_max)
+    return Ramp(mode, commands, float(np.max(seconds)), expected, allowance,
+                PACE_STALL_S / cfg.speed)
 
 
 def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.ndarray,
@@ -114,20 +155,27 @@ def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.nda
         return start + w * (end - start)
 
     return _ramp(mode, start, end, held, cfg, model.f_max, path,
-                 np.where(held, np.abs(f1 - f0), 0.0))
+                 np.where(held, np.abs(f1 - f0), 0.0), lambda x: f0 + x * (f1 - f0))
 
 
-def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig) -> Ramp:
-    """Unload the old pose: the slack removal of ``previous`` run backwards.
+def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig,
+            theta: np.ndarray | None = None) -> Ramp:
+    """Unload the old pose: the slack removal of ``previous`` run backwards, at ``theta``,
+    where the arm is (default: the pose).
 
     Each muscle starts where it is (bumpless), a tension-controlled one at no more than the
     plan ever asked of it: a wire reading far above its command (snagged, or mid-swing when
-    a pose is given up) is not to be held there.
+    a pose is given up) is not to be held there. Held muscles end at the approach tensions'
+    lengths of where the arm is: a pose given up on the way to it (the arm short of the pose,
+    a wire at the load limit) is unloaded there, not wound on towards the pose it could not
+    reach.
     """
+    theta = previous.theta if theta is None else np.asarray(theta, float)
     asked = np.maximum(previous.hold_command, previous.overshoot_command)
     start = np.where(previous.held, now.length, np.minimum(now.tension, asked))
-    end = np.where(previous.held, previous.approach_length, _pretension(model, previous))
-    return _loading(model, previous.theta, previous.held, start, end, cfg, previous.hold_mode)
+    pretension = _pretension(model, previous)
+    end = np.where(previous.held, model.length(theta, pretension), pretension)
+    return _loading(model, theta, previous.held, start, end, cfg, previous.hold_mode)
 
 
 def _pretension(model: ArmModel, target: Target) -> np.ndarray:
@@ -136,41 +184,62 @@ def _pretension(model: ArmModel, target: Target) -> np.ndarray:
 
 
 def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
-         cfg: MoveConfig, balance: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
-         ) -> Ramp:
+         cfg: MoveConfig, balance: Callable[..., np.ndarray] | None = None) -> Ramp:
     """Length commands from where the arm is to ``target.approach_length``.
 
-    ``balance(θ, floor)``: the lowest tensions of at least ``floor`` that hold θ. With it,
-    the tensions the lengths are computed for hold each pose the path passes (solved at
-    ``MOVE_KNOTS`` poses with floors blended from the start's tensions to the approach's,
-    linear between them); the start's own imbalance (measured tensions) is blended out.
-    Without it (or where a pose on the way cannot be held), the start and end tensions
-    blend linearly. Lengths at unbalanced tensions put the arm where those tensions balance
-    instead, and on an arm with a soft direction (the two proximal joints of MyoSuite's
-    finger) that was far enough off the path for the arm to end beside the target's
-    approach, in another rest position of the same lengths.
+    ``balance(θ, floor)``: the lowest tensions of at least ``floor`` (None: the muscles' own
+    floors) that hold θ. With it, the tensions the lengths are computed for hold each pose
+    the path passes (solved at ``MOVE_KNOTS`` poses with floors blended from the start's
+    tensions to the approach's, else at the muscles' own floors; linear between them); the
+    start's own imbalance (measured tensions) is blended out. Where a pose on the way cannot
+    be held at all, the tensions there blend linearly from the start's to the end's, and the
+    ramp names the first such pose (``Ramp.unheld``). Lengths at unbalanced tensions put
+    the arm where those tensions balance instead, and on an arm with a soft direction (the
+    two proximal joints of MyoSuite's finger) that was far enough off the path for the arm
+    to end beside the target's approach, in another rest position of the same lengths.
     """
     f_now = np.maximum(now.tension, 0.0)
     f_end = _pretension(model, target)
     start_error = now.length - model.length(theta_now, f_now)
     knots = np.linspace(0.0, 1.0, MOVE_KNOTS + 1)
     along = np.outer(1.0 - knots, f_now) + np.outer(knots, f_end)  # (knots, M)
+    unheld = None
     if balance is not None:
-        try:
-            held = np.array([balance(theta_now + s * (target.theta - theta_now), floor)
-                             for s, floor in zip(knots, along, strict=True)])
-        except InfeasiblePoseError:
-            pass
-        else:
-            along = held + np.outer(1.0 - knots, f_now - held[0])
+        held = along.copy()
+        for k, s in enumerate(knots):
+            theta = theta_now + s * (target.theta - theta_now)
+            for floor in (along[k], None):
+                try:
+                    held[k] = balance(theta, floor)
+                    break
+                except InfeasiblePoseError:
+                    continue
+            else:
+                unheld = theta if unheld is None else unheld
+        along = held + np.outer(1.0 - knots, f_now - held[0])
+
+    def tension(s: float) -> np.ndarray:
+        return np.array([np.interp(s, knots, column) for column in along.T])
 
     def path(s: float) -> np.ndarray:
         theta = theta_now + s * (target.theta - theta_now)
-        f = np.array([np.interp(s, knots, column) for column in along.T])
-        return model.length(theta, f) + (1.0 - s) * start_error
+        return model.length(theta, tension(s)) + (1.0 - s) * start_error
 
-    return _ramp("length", now.length, target.approach_length,
-                 np.ones(model.n_muscles, bool), cfg, model.f_max, path)
+    grid = np.linspace(0.0, 1.0, 4 * MOVE_KNOTS + 1)
+    span = _stiff_travel(model, np.array([path(x) for x in grid]),
+                         np.array([tension(x) for x in grid]))
+    ramp = _ramp("length", now.length, target.approach_length,
+                 np.ones(model.n_muscles, bool), cfg, model.f_max, path, span, tension)
+    return replace(ramp, unheld=unheld)
+
+
+def _stiff_travel(model: ArmModel, lengths: np.ndarray, tensions: np.ndarray) -> np.ndarray:
+    """(M,) N: the tension each wire would gain if the arm stood still while its motor went
+    along ``lengths`` (points, M) at the stiffness of ``tensions`` (points, M), df/dl =
+    K(f + 1): a ramp limited in it like a tension command loads a wire no faster than a
+    tension command would, however slowly the arm follows."""
+    f = np.maximum((tensions[1:] + tensions[:-1]) / 2, 0.0)
+    return np.sum(np.abs(np.diff(lengths, axis=0)) * model.K * (f + 1.0), axis=0)
 
 
 def take_up_slack(model: ArmModel, now: Reading, target: Target, cfg: MoveConfig,
@@ -195,6 +264,7 @@ def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:
     last = max(len(ramp.commands) - 1, 1)
     interval = ramp.duration / last
     reading = None
+    known = np.zeros(len(ramp.commands[0]))  # excess a stalled wait left: a load not modelled
     for k, command in enumerate(ramp.commands):
         wait = t0 + interval * k - time.monotonic()
         if wait > 0:
@@ -203,5 +273,38 @@ def run_ramp(link: ArmLink, ramp: Ramp) -> Reading:
             t0 -= wait  # re-time: this command goes now, the next one an interval later
         link.command(ramp.mode, command)
         reading = link.read()
+        if ramp.expected is not None:
+            reading, waited = _wait_for_arm(link, ramp, k, reading, known)
+            t0 += waited  # the rest of the schedule follows the arm
     assert reading is not None
     return reading
+
+
+def _wait_for_arm(link: ArmLink, ramp: Ramp, k: int, reading: Reading, known: np.ndarray
+                  ) -> tuple[Reading, float]:
+    """Hold command ``k`` while a length-controlled wire reads more than the ramp expects of
+    it by more than its allowance, until it is back within half the allowance (the arm has
+    caught up) or the excess stops falling for ``ramp.stall_s`` (the rest is a load the
+    description does not know: added to ``known`` and not waited for again); (the last
+    reading, seconds waited)."""
+    assert ramp.expected is not None and ramp.allowance is not None
+    expected, allowance = ramp.expected[k] + known, ramp.allowance[k]
+    watched = np.isfinite(expected)
+    if not (watched & (reading.tension - expected > allowance)).any():
+        return reading, 0.0
+    start = progress_at = time.monotonic()
+    least = np.inf
+    while True:
+        time.sleep(PACE_POLL_S)
+        link.command(ramp.mode, ramp.commands[k])
+        reading = link.read()
+        behind = np.where(watched, (reading.tension - expected) / allowance - 0.5, 0.0)
+        if (behind <= 0).all():
+            break
+        now, lag = time.monotonic(), float(np.maximum(behind, 0.0).sum())
+        if lag < least - 0.05:
+            least, progress_at = lag, now
+        elif now - progress_at >= ramp.stall_s:
+            known += np.maximum(behind, 0.0) * allowance
+            break
+    return reading, time.monotonic() - start

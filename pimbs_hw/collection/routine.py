@@ -30,10 +30,11 @@ boards' ceiling still stops everything that the guard cannot see coming.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import datetime as dt
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -42,7 +43,15 @@ import numpy as np
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.estimate import estimate_theta
 from pimbs_hw.collection.link import ApproachLink, ArmLink, LoadGuard, Overload, Reading
-from pimbs_hw.collection.move import MoveConfig, move, release, run_ramp, take_up_slack
+from pimbs_hw.collection.move import (
+    LOAD_LIMIT,
+    MoveConfig,
+    Ramp,
+    move,
+    release,
+    run_ramp,
+    take_up_slack,
+)
 from pimbs_hw.collection.plan import MAX_POSE_EXCURSION, CollectionPlan, Target
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 from pimbs_hw.collection.temperature import filled
@@ -51,9 +60,6 @@ from pimbs_recording.format import RecordingWriter
 # m: how far short of the overshoot the final approach may start; its last motion is then still
 # APPROACH_TRAVEL - OVERSHOOT_TOL = 1.1 mm, beyond a full friction reversal (2 bands, 1 mm)
 OVERSHOOT_TOL = 3e-4
-# fraction of f_max past which the routine gives a pose up (unloads it and goes on): above
-# every command of a plan (PLAN_CEILING 0.9), below the boards' ceiling, which stops it all
-LOAD_LIMIT = 0.95
 # a run that gives up more than this share of the poses it tried is no complete collection
 GIVE_UP_SHARE = 0.5
 # a tension-controlled muscle counts as at rest within this share of its command (or the
@@ -61,6 +67,17 @@ GIVE_UP_SHARE = 0.5
 REST_TENSION_SHARE = 0.25
 
 Holding = tuple[tuple[str, ...] | str, np.ndarray]  # (mode, command) sent while holding
+
+
+@contextlib.contextmanager
+def _way_there(way: Ramp) -> Iterator[None]:
+    """An ``Overload`` on the way to a pose learns whether that way passed poses no tensions
+    hold (``Ramp.unheld``): then that, not the wire, is why the pose was given up."""
+    try:
+        yield
+    except Overload as over:
+        over.unheld = way.unheld
+        raise
 
 
 @dataclass
@@ -202,8 +219,9 @@ class Collector:
         """Move to the pose at low tension, remove the slack past the holding and back, and
         settle (``Overload`` if a muscle pulls past the load limit on the way)."""
         model, muscles, cfg = self.model, self.model.muscles, self.move
-        with self.link.watching():
-            run_ramp(self.link, move(model, reading, theta, target, cfg, self.plan.balance))
+        way = move(model, reading, theta, target, cfg, self.plan.balance)
+        with self.link.watching(), _way_there(way):
+            run_ramp(self.link, way)
             moved = hold_until_settled(self.link, "length", target.approach_length,
                                        self.settle.reached(), muscles)
             self.link.pose = target.theta  # from here on the arm stays near the pose
@@ -238,7 +256,14 @@ class Collector:
         s = self.summary
         s.skipped.append(i)
         s.next_sample = i + 1
-        if over.muscle is None:
+        if over.unheld is not None:
+            pose = ", ".join(f"{j}={t:.3f}" for j, t in
+                             zip(self.model.joints, over.unheld, strict=True))
+            why = ("the straight way there passes poses the description's muscles cannot hold "
+                   f"within the plan's ceiling (the first at {pose} rad), so the arm leaned "
+                   "on its stops or left the way: narrow the joint ranges in the muscle file "
+                   "to where the muscles hold the arm, or give them a higher f_max")
+        elif over.muscle is None:
             why = ("the muscles the plan holds it with do not balance this pose on the arm "
                    "(moment arms or loads other than the description's)")
         else:
@@ -253,7 +278,8 @@ class Collector:
         """The slack removal of ``target`` undone from where the arm is (bumpless in every
         phase: each muscle starts at its reading), then wait for the joints to rest: the
         next move starts from where the arm is, and a swinging arm is not there for long."""
-        ramp = release(self.model, reading, target, self.move)
+        ramp = release(self.model, reading, target, self.move,
+                       self._theta(reading, target.theta))
         run_ramp(self.link, ramp)
         holding = (ramp.mode, ramp.commands[-1])
         return self._rest(*holding).reading, holding

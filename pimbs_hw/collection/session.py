@@ -95,12 +95,13 @@ def simulation_cause(stop: SafetyStop, link: DriverLink | None) -> SafetyStop:
 
 
 def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
-                sample: int | None = None) -> str:
+                sample: int | None = None, rings: str = "") -> str:
     """The stop's message plus what to do about it before ``--resume``.
 
     A tension ceiling names the pose and what the model says about it: if the plan needed
     that tension the plan is wrong (an infeasible pose; resuming would stop there again),
-    otherwise the wire met something the model does not know (a snag).
+    otherwise the wire met something the model does not know: a snag on a real arm, or, on
+    a simulated arm warned as barely damped (``rings``: that warning), its own swing.
     """
     todo = next((text for kind, text in _ADVICE if isinstance(stop, kind)),
                 "inspect the arm")
@@ -110,12 +111,14 @@ def stop_advice(stop: SafetyStop, plan: CollectionPlan | None = None,
         return f"{stop}. {state}."
     if isinstance(stop, TensionLimit) and plan is not None and sample is not None \
             and sample < plan.n_samples:
-        return f"{stop}. {state}. {ceiling_verdict(stop, plan, sample)}"
+        return f"{stop}. {state}. {ceiling_verdict(stop, plan, sample, rings)}"
     return f"{stop}. {state}. What to do: {todo}; then rerun with --resume."
 
 
-def ceiling_verdict(stop: TensionLimit, plan: CollectionPlan, sample: int) -> str:
-    """Where the ceiling was reached and whether the model's plan asked for that tension."""
+def ceiling_verdict(stop: TensionLimit, plan: CollectionPlan, sample: int,
+                    rings: str = "") -> str:
+    """Where the ceiling was reached and whether the model's plan asked for that tension
+    (``rings``: the simulated arm was warned to be barely damped, see ``stop_advice``)."""
     model = plan.model
     target = plan.target(sample)
     # the most the plan asks of each wire: the holding tension, or a tension overshoot
@@ -130,5 +133,10 @@ def ceiling_verdict(stop: TensionLimit, plan: CollectionPlan, sample: int) -> st
         return (where + "the plan needed that tension (an infeasible pose); this sample "
                 "would stop again on --resume. Check the robot description with `pimbs robot` "
                 "(routing, masses, f_max) before resuming")
+    if rings:
+        return (where + "the plan did not need that tension: the simulated arm is barely "
+                "damped (warned before it moved), so it swings after each load step and a held "
+                "wire takes the swing. Nothing on an arm failed: give the plant's joints the "
+                "damping that warning suggests, then rerun with --resume")
     return (where + "the plan did not need that tension, so something the model does not "
             f"know pulled it (a snag). What to do: {_ADVICE_TENSION}; then rerun with --resume")
