@@ -290,9 +290,16 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
             click.echo(line)
     if error:
         raise click.ClickException(error)
-    if collector is not None and collector.summary.failed:
+    summary = None if collector is None else collector.summary
+    if summary is not None and summary.failed and summary.unheld_ways > len(summary.skipped) / 2:
         raise click.ClickException(
-            f"{collector.summary.failed}: the arm did not stay at the poses the description "
+            f"{summary.failed}: the muscles cannot carry the arm from where it stood to its "
+            "poses (the warnings above name a pose on each way). Narrow the joint ranges in "
+            "the muscle file to where they hold the arm (`pimbs robot "
+            f"{model.robot.muscle_path}` shows what each pulls), or give them a higher f_max")
+    if summary is not None and summary.failed:
+        raise click.ClickException(
+            f"{summary.failed}: the arm did not stay at the poses the description "
             f"plans (the warnings above say why each was given up). Check the description "
             f"against the arm with `pimbs robot {model.robot.muscle_path}`, or collect with "
             "--map al (lower tensions)")

@@ -92,6 +92,7 @@ class Summary:
     already: int = 0           # rows that were in the file before (resume)
     unsettled: int = 0
     skipped: list[int] = field(default_factory=list)  # infeasible poses
+    unheld_ways: int = 0        # poses given up on a way that passes poses no tensions hold
     warnings: list[str] = field(default_factory=list)
     stopped: str | None = None  # why the run ended early (None: completed)
     started_at: float = field(default_factory=time.monotonic)
@@ -132,11 +133,16 @@ class Summary:
         if self.stopped is not None or tried <= 0:
             return None
         if self.rows == 0:
-            return f"no pose was recorded: all {tried} tried were given up"
-        if len(self.skipped) > GIVE_UP_SHARE * tried:
-            return (f"{len(self.skipped)} of the {tried} poses tried were given up, "
+            what = f"no pose was recorded: all {tried} tried were given up"
+        elif len(self.skipped) > GIVE_UP_SHARE * tried:
+            what = (f"{len(self.skipped)} of the {tried} poses tried were given up, "
                     f"{self.written} recorded")
-        return None
+        else:
+            return None
+        if self.unheld_ways > len(self.skipped) / 2:
+            what += (f", {self.unheld_ways} of them on ways that pass poses the description's "
+                     "muscles cannot hold")
+        return what
 
 
 class Reporter(Protocol):
@@ -257,6 +263,7 @@ class Collector:
         s.skipped.append(i)
         s.next_sample = i + 1
         if over.unheld is not None:
+            s.unheld_ways += 1
             pose = ", ".join(f"{j}={t:.3f}" for j, t in
                              zip(self.model.joints, over.unheld, strict=True))
             why = ("the straight way there passes poses the description's muscles cannot hold "
