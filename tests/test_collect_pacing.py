@@ -115,3 +115,14 @@ def test_relaxing_onto_a_stop_the_muscles_cannot_lift_the_arm_from_is_refused():
     assert "IFmcp=1.047" in fall  # the knuckle's stop
     assert "more than its f_max" in fall and "only its stops carry it there" in fall
     assert relax_fall(ArmModel.load("two-link-4-muscle")) is None
+
+
+def test_a_run_given_up_on_ways_no_tensions_hold_says_so():
+    from pimbs_hw.collection.routine import Summary
+
+    s = Summary(path="f.parquet", total=5, start=0, next_sample=5, skipped=[0, 1, 2, 3, 4],
+                unheld_ways=4)
+    assert s.failed == ("no pose was recorded: all 5 tried were given up, 4 of them on ways "
+                        "that pass poses the description's muscles cannot hold")
+    s.unheld_ways = 2  # most were given up for other reasons: nothing said of the ways
+    assert s.failed == "no pose was recorded: all 5 tried were given up"
