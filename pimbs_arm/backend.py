@@ -93,6 +93,11 @@ class ArmBackend(Protocol):
         """Gravity potential energy (J); its gradient is ``gravity``."""
         ...
 
+    def inertia(self, theta: np.ndarray) -> np.ndarray:
+        """(N, N) joint-space inertia of the driven joints (through their couplings), with
+        the joints' armature where the description gives it: how fast the arm swings."""
+        ...
+
     def moving_mass(self) -> float:
         """Mass (kg) moved by the driven joints (for the description's explanation)."""
         ...

@@ -131,6 +131,11 @@ class ArmModel:
     def _gravity(self, theta: np.ndarray) -> np.ndarray:
         return self.backend.gravity(np.asarray(theta, dtype=np.float64))
 
+    def inertia(self, theta) -> np.ndarray:
+        """(N, N) joint-space inertia of a single pose (armature included): with the held
+        wires' stiffness, how fast the arm swings."""
+        return self.backend.inertia(np.asarray(theta, dtype=np.float64))
+
     def potential_energy(self, theta) -> float:
         """Gravity potential energy (J) of a single pose; its gradient is ``gravity_torque``."""
         return self.backend.potential_energy(np.asarray(theta, dtype=np.float64))

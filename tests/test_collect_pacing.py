@@ -126,3 +126,51 @@ def test_a_run_given_up_on_ways_no_tensions_hold_says_so():
                         "that pass poses the description's muscles cannot hold")
     s.unheld_ways = 2  # most were given up for other reasons: nothing said of the ways
     assert s.failed == "no pose was recorded: all 5 tried were given up"
+
+
+ELBOW = Path(__file__).parent.parent / "fixtures/myosuite/elbow/myoelbow_1dof6muscles.xml"
+
+
+def test_the_swing_of_an_arm_on_one_held_wire_is_that_of_a_mass_on_a_spring():
+    """One held wire on a one-joint arm: ω² = K(f + 1)·G² / I, I from MuJoCo itself."""
+    import mujoco
+
+    from pimbs_hw.collection.move import swing_period
+
+    model = ArmModel.load(ELBOW)
+    theta = np.array([0.8])
+    mj = mujoco.MjModel.from_xml_path(str(ELBOW))
+    data = mujoco.MjData(mj)
+    joint = mj.joint(model.joints[0])
+    data.qpos[joint.qposadr] = theta
+    mujoco.mj_forward(mj, data)
+    full = np.zeros((mj.nv, mj.nv))
+    mujoco.mj_fullM(mj, data, full)
+    inertia = full[joint.dofadr[0], joint.dofadr[0]]
+    np.testing.assert_allclose(model.inertia(theta), [[inertia]], rtol=1e-12)
+    held = np.zeros(model.n_muscles, bool)
+    held[3] = True
+    tension = np.full(model.n_muscles, 120.0)
+    G = model.muscle_jacobian(theta)[3, 0]
+    expected = 2 * np.pi * np.sqrt(inertia / (model.K[3] * 121.0 * G**2))
+    np.testing.assert_allclose(swing_period(model, theta, held, tension), expected, rtol=1e-9)
+    assert swing_period(model, theta, np.zeros(model.n_muscles, bool), tension) == 0.0
+
+
+def test_a_load_ramp_lasts_two_swings_of_the_arm_except_on_a_quasi_static_one():
+    from pimbs_hw.collection.move import SWING_PERIODS, swing_period, take_up_slack
+
+    model = ArmModel.load(ELBOW)
+    plan = CollectionPlan(model, 3, seed=0)
+    target = plan.target(1)
+    pretension = model.tension_from_stretch(model.h_geom(target.theta)
+                                            - target.approach_length)
+    now = Reading(target.approach_length, pretension, np.full(model.n_muscles, 25.0),
+                  target.theta)
+    swing = swing_period(model, target.theta, target.held,
+                         np.minimum(pretension, target.tension))
+    assert swing > 0.1  # this elbow swings slowly enough to matter
+    ramp = take_up_slack(model, now, target, MoveConfig())
+    assert ramp.duration >= SWING_PERIODS * swing - 1e-12
+    quick = take_up_slack(model, now, target, MoveConfig(quasi_static=True))
+    assert quick.duration < SWING_PERIODS * swing

@@ -203,6 +203,20 @@ class MujocoBackend:
         with self._lock:
             return _central_difference(self._bias, theta)
 
+    def inertia(self, theta: np.ndarray) -> np.ndarray:
+        """MuJoCo's joint-space inertia (``mj_fullM``, armature included) of the driven
+        joints, a follower's share through its coupling: SᵀMS."""
+        m = self.mj_model
+        with self._lock:
+            d = self._position(np.asarray(theta, dtype=np.float64))
+            mujoco.mj_crb(m, d)
+            full = np.zeros((m.nv, m.nv))
+            mujoco.mj_fullM(m, d, full)
+            if not self.robot.couplings:
+                return full[np.ix_(self._dof, self._dof)]
+            cols, S = self._coupled.columns, self._coupled.jacobian(d.qpos)
+            return S.T @ full[np.ix_(cols, cols)] @ S
+
     def potential_energy(self, theta: np.ndarray) -> float:
         """-sum_b m_b gravity . com_b (J): its gradient is ``gravity``."""
         m = self.mj_model

@@ -264,6 +264,14 @@ class ViaPointBackend:
                                                           self._q(theta))
             return self._S.T @ np.array(dg)[np.ix_(self._iv, self._iv)] @ self._S
 
+    def inertia(self, theta: np.ndarray) -> np.ndarray:
+        """Pinocchio's joint-space inertia (CRBA, the URDF's rotor inertia as armature) of
+        the driven joints."""
+        with self._lock:
+            M = pin.crba(self._model, self._data, self._q(np.asarray(theta, float)))
+            M = np.triu(M) + np.triu(M, 1).T  # crba fills the upper triangle
+            return self._S.T @ M[np.ix_(self._iv, self._iv)] @ self._S
+
     def potential_energy(self, theta: np.ndarray) -> float:
         with self._lock:
             return float(pin.computePotentialEnergy(self._model, self._data,

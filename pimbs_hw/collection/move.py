@@ -37,6 +37,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+import scipy.linalg
 
 from pimbs_arm.model import ArmModel, InfeasiblePoseError
 from pimbs_hw.collection.link import ArmLink, Reading
@@ -52,6 +53,10 @@ PACE_MIN_SHARE = 0.02  # of f_max: the least allowance (noise, a loadcell's hyst
 # load the description does not know, and goes on
 PACE_STALL_S = 0.5
 PACE_POLL_S = 0.005  # s between command/read cycles while a ramp waits for the arm
+# a load ramp lasts at least this many of the slowest swings of the arm on its held wires:
+# a linear ramp over whole swings leaves (nearly) no swing behind, one over a fraction of a
+# swing acts as a step
+SWING_PERIODS = 2.0
 
 
 @dataclass(frozen=True)
@@ -102,7 +107,7 @@ class Ramp:
 
 def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: MoveConfig,
           f_max: np.ndarray, path=None, tension_span: np.ndarray | None = None,
-          expect: Callable[[float], np.ndarray] | None = None) -> Ramp:
+          expect: Callable[[float], np.ndarray] | None = None, min_s: float = 0.0) -> Ramp:
     """``tension_span`` (N, per muscle): the tension change a length-mode muscle is expected
     to go through, limited like a tension command's (the steps and the rate) unless the arm
     is quasi-static (``MoveConfig.quasi_static``). ``expect(x)``: the tensions the
@@ -117,6 +122,8 @@ def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: 
     if tension_span is not None and not cfg.quasi_static:
         steps = np.maximum(steps, tension_span / tension_step)
         seconds = np.maximum(seconds, tension_span / tension_rate)
+    if not cfg.quasi_static:
+        seconds = np.maximum(seconds, min_s / cfg.speed)
     n = max(1, int(np.ceil(np.max(steps))))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
@@ -154,8 +161,32 @@ def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.nda
                      / np.where(moving, s1 - s0, 1.0), x)
         return start + w * (end - start)
 
+    swing = 0.0 if cfg.quasi_static else swing_period(model, theta, held, np.minimum(f0, f1))
     return _ramp(mode, start, end, held, cfg, model.f_max, path,
-                 np.where(held, np.abs(f1 - f0), 0.0), lambda x: f0 + x * (f1 - f0))
+                 np.where(held, np.abs(f1 - f0), 0.0), lambda x: f0 + x * (f1 - f0),
+                 SWING_PERIODS * swing)
+
+
+def swing_period(model: ArmModel, theta: np.ndarray, held: np.ndarray,
+                 tension: np.ndarray) -> float:
+    """s: the slowest swing of the arm at ``theta`` on its ``held`` wires at ``tension`` (the
+    description's inertia against the wires' stiffness K(f + 1) through their moment arms;
+    tension-controlled wires pull the same whatever the arm does and add none). 0 where no
+    held wire makes a spring of the arm (nothing to swing against).
+
+    Loading the tension-controlled wires of a pose against its held ones is a push on that
+    spring: MyoSuite's elbow with a 2.5 kg weight in the hand swings 0.4 s on its biceps, and
+    its triceps loaded in 0.3 s swung it open until the biceps reached the boards' ceiling."""
+    if not held.any():
+        return 0.0
+    G = model.muscle_jacobian(theta)[held]
+    stiffness = G.T @ ((model.K[held] * (np.maximum(tension[held], 0.0) + 1.0))[:, None] * G)
+    try:
+        w2 = scipy.linalg.eigh(stiffness, model.inertia(theta), eigvals_only=True)
+    except (np.linalg.LinAlgError, ValueError):  # no inertia to speak of: nothing swings
+        return 0.0
+    w2 = w2[w2 > 1e-9 * max(float(w2.max(initial=0.0)), 1e-300)]
+    return 0.0 if not w2.size else float(2.0 * np.pi / np.sqrt(w2.min()))
 
 
 def release(model: ArmModel, now: Reading, previous: Target, cfg: MoveConfig,
