@@ -158,7 +158,12 @@ def test_the_swing_of_an_arm_on_one_held_wire_is_that_of_a_mass_on_a_spring():
 
 
 def test_a_load_ramp_lasts_two_swings_of_the_arm_except_on_a_quasi_static_one():
-    from pimbs_hw.collection.move import SWING_PERIODS, swing_period, take_up_slack
+    from pimbs_hw.collection.move import (
+        RAMP_CYCLE_S,
+        SWING_PERIODS,
+        swing_period,
+        take_up_slack,
+    )
 
     model = ArmModel.load(ELBOW)
     plan = CollectionPlan(model, 3, seed=0)
@@ -172,5 +177,7 @@ def test_a_load_ramp_lasts_two_swings_of_the_arm_except_on_a_quasi_static_one():
     assert swing > 0.1  # this elbow swings slowly enough to matter
     ramp = take_up_slack(model, now, target, MoveConfig())
     assert ramp.duration >= SWING_PERIODS * swing - 1e-12
+    # stretched to the swing, it still sends a command every cycle (the boards' watchdogs)
+    assert ramp.duration / (len(ramp.commands) - 1) <= RAMP_CYCLE_S + 1e-12
     quick = take_up_slack(model, now, target, MoveConfig(quasi_static=True))
     assert quick.duration < SWING_PERIODS * swing

@@ -57,6 +57,7 @@ PACE_POLL_S = 0.005  # s between command/read cycles while a ramp waits for the 
 # a linear ramp over whole swings leaves (nearly) no swing behind, one over a fraction of a
 # swing acts as a step
 SWING_PERIODS = 2.0
+RAMP_CYCLE_S = 0.02  # s: the longest a ramp holds one command (the boards' watchdog: 0.25 s)
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,9 @@ def _ramp(mode, start: np.ndarray, end: np.ndarray, is_length: np.ndarray, cfg: 
         seconds = np.maximum(seconds, tension_span / tension_rate)
     if not cfg.quasi_static:
         seconds = np.maximum(seconds, min_s / cfg.speed)
-    n = max(1, int(np.ceil(np.max(steps))))
+    # a command at least every RAMP_CYCLE_S: the boards' watchdogs are fed by commands, and a
+    # ramp stretched to the arm's swing must not hold one command for a whole swing
+    n = max(1, int(np.ceil(np.max(steps))), int(np.ceil(np.max(seconds) / RAMP_CYCLE_S)))
     s = np.linspace(0.0, 1.0, n + 1)
     commands = [start + x * (end - start) for x in s] if path is None else [path(x) for x in s]
     commands[-1] = end
