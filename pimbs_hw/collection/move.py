@@ -164,7 +164,7 @@ def _loading(model: ArmModel, theta: np.ndarray, held: np.ndarray, start: np.nda
                      / np.where(moving, s1 - s0, 1.0), x)
         return start + w * (end - start)
 
-    swing = 0.0 if cfg.quasi_static else swing_period(model, theta, held, np.minimum(f0, f1))
+    swing = 0.0 if cfg.quasi_static else swing_period(model, theta, held, (f0 + f1) / 2)
     return _ramp(mode, start, end, held, cfg, model.f_max, path,
                  np.where(held, np.abs(f1 - f0), 0.0), lambda x: f0 + x * (f1 - f0),
                  SWING_PERIODS * swing)
