@@ -177,11 +177,13 @@ def _plant_notes(plant: Path, model, wait_s: float) -> str:
     one when it must be integrated with a finer timestep than its file's (and a plant that
     does not fit the description is refused here, before connecting). Returns the ringing
     line ('' if none), for a stop to name the swing as its cause."""
-    from pimbs_hw.mock.mujoco_plant import plant_notes, ringing
+    from pimbs_hw.mock.mujoco_plant import plant_notes
 
-    for note in plant_notes(plant, model.robot, wait_s):
-        click.echo(note, err=True)
-    return ringing(plant, model.robot).note(plant, model.robot.joints, wait_s)
+    rings, step = plant_notes(plant, model.robot, wait_s)
+    for note in (rings, step):
+        if note:
+            click.echo(note, err=True)
+    return rings
 
 
 def _relax_note(model, simulated: bool) -> bool:

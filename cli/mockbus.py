@@ -113,7 +113,8 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
 
         click.echo(f"the true arm: {plant}, integrated by MuJoCo")
         for note in plant_notes(plant, description, SettleConfig().timeout):
-            click.echo(note, err=True)
+            if note:
+                click.echo(note, err=True)
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:

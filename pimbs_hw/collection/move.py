@@ -247,9 +247,10 @@ def move(model: ArmModel, now: Reading, theta_now: np.ndarray, target: Target,
                     held[k] = balance(theta, floor)
                     break
                 except InfeasiblePoseError:
-                    continue
+                    pass
             else:
-                unheld = theta if unheld is None else unheld
+                if unheld is None:
+                    unheld = theta
         along = held + np.outer(1.0 - knots, f_now - held[0])
 
     def tension(s: float) -> np.ndarray:

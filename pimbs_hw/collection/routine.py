@@ -205,7 +205,7 @@ class Collector:
             if target.note:
                 self._warn(f"sample {i}: {target.note}")
             if previous is not None:
-                reading, _ = self._unload(previous, reading)
+                reading, _ = self._unload(previous, reading, theta)
             try:
                 held = self._load(target, reading, theta)
             except Overload as over:
@@ -256,7 +256,8 @@ class Collector:
         same lengths (MyoSuite's finger with a joint on its limit and the neighbouring joint
         bent instead), or a snagged or overloaded wire. Unloaded in place, the next move would
         start from there, and on the finger the next pose failed the same way."""
-        reading, holding = self._unload(target, over.reading)
+        reading, holding = self._unload(target, over.reading,
+                                        self._theta(over.reading, target.theta))
         if self.relax_safe:
             reading, holding = self._start_over(), ("relax", self.floor)
         s = self.summary
@@ -281,12 +282,13 @@ class Collector:
                    "collection goes on")
         return reading, holding
 
-    def _unload(self, target: Target, reading: Reading) -> tuple[Reading, Holding]:
+    def _unload(self, target: Target, reading: Reading, theta: np.ndarray
+                ) -> tuple[Reading, Holding]:
         """The slack removal of ``target`` undone from where the arm is (bumpless in every
-        phase: each muscle starts at its reading), then wait for the joints to rest: the
+        phase: each muscle starts at its reading; ``theta``: the joints at ``reading``, as
+        the row or the give-up already has them), then wait for the joints to rest: the
         next move starts from where the arm is, and a swinging arm is not there for long."""
-        ramp = release(self.model, reading, target, self.move,
-                       self._theta(reading, target.theta))
+        ramp = release(self.model, reading, target, self.move, theta)
         run_ramp(self.link, ramp)
         holding = (ramp.mode, ramp.commands[-1])
         return self._rest(*holding).reading, holding

@@ -301,15 +301,15 @@ def timestep(xml: Path, robot, mj: mujoco.MjModel | None = None) -> Timestep:
                     muscle=robot.muscles[worst].name, f_max=float(robot.muscles[worst].f_max))
 
 
-def plant_notes(xml: Path, robot, wait_s: float) -> list[str]:
-    """The lines to show before the plant arm moves: how it rings (``Ringing.note``) and
+def plant_notes(xml: Path, robot, wait_s: float) -> tuple[str, str]:
+    """The lines to show before the plant arm moves, each '' when there is nothing to say:
+    how it rings (``Ringing.note``; a collection's stop names the swing when it was said) and
     the timestep it is integrated with (``Timestep.note``); a plant that does not fit the
     description is refused (``PlantMismatch``)."""
     xml = Path(xml)
     mj = _compile(xml)
-    notes = [ringing(xml, robot).note(xml, robot.joints, wait_s),
-             timestep(xml, robot, mj).note(xml)]
-    return [note for note in notes if note]
+    return (ringing(xml, robot).note(xml, robot.joints, wait_s),
+            timestep(xml, robot, mj).note(xml))
 
 
 def _decay_s(damping: np.ndarray, inertia: np.ndarray) -> float:
