@@ -2,8 +2,7 @@
 
 Order of events for sample i (see ``plan.Target``): every muscle length-controlled, ramped
 to the geometric length of the approach tensions, the lowest that hold the pose stiffly (the
-arm moves there; ``move.py``) until the motors are near those lengths (and, on an arm with
-inertia, its joints are still: ``SettleConfig.reached``); then the load-bearing
+arm moves there; ``move.py``) until the motors are near those lengths; then the load-bearing
 muscles held in length and the others tension-controlled, ramped to the QP tensions (slack
 removed, pose kept), settle (the one full wait: the arm's creep from the move ends during
 the slack removal), read, and append one row. The slack removal overshoots the holding and
