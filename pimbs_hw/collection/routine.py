@@ -177,7 +177,6 @@ class Collector:
         self.move = move or MoveConfig()
         if getattr(link, "quasi_static", False):  # nothing swings: no gentle loading needed
             self.move = dataclasses.replace(self.move, quasi_static=True)
-        self._swings = not self.move.quasi_static  # wait for joints at rest before loading
         self.floor = np.array([m.f_floor for m in model.robot.muscles])
         # relaxing keeps the arm in its routed range (``relax.relax_fall``): it then starts,
         # and after a pose given up starts over, from the relaxed rest; else it is held
@@ -230,7 +229,7 @@ class Collector:
         with self.link.watching(), _way_there(way):
             run_ramp(self.link, way)
             moved = hold_until_settled(self.link, "length", target.approach_length,
-                                       self.settle.reached(swings=self._swings), muscles)
+                                       self.settle.reached(), muscles)
             self.link.pose = target.theta  # from here on the arm stays near the pose
             run_ramp(self.link, take_up_slack(model, moved.reading, target, cfg,
                                               target.overshoot_command))
@@ -329,7 +328,7 @@ class Collector:
         in the tension error that stretches the wire by as much)."""
         tension = np.where(target.held, target.tension, target.overshoot_command)
         tension_tol = (1.0 + np.abs(tension)) * np.expm1(self.model.K * OVERSHOOT_TOL)
-        return self.settle.overshot(OVERSHOOT_TOL, np.maximum(tension_tol, 1.0), self._swings)
+        return self.settle.overshot(OVERSHOOT_TOL, np.maximum(tension_tol, 1.0))
 
     def _row(self, i: int, theta_command: np.ndarray, held: Settled) -> dict[str, Any]:
         r = held.reading
