@@ -180,3 +180,46 @@ def test_a_load_ramp_lasts_two_swings_of_the_arm_except_on_a_quasi_static_one():
     assert ramp.duration / (len(ramp.commands) - 1) <= RAMP_CYCLE_S + 1e-12
     quick = take_up_slack(model, now, target, MoveConfig(quasi_static=True))
     assert quick.duration < SWING_PERIODS * swing
+
+
+class CreepingJoints:
+    """One motor at its command; a joint that creeps toward it, closing 10 % of the gap per
+    read (1 s apart on the fake clock)."""
+
+    def __init__(self) -> None:
+        self.motor, self.theta = 0.0, 0.0
+        self.t = 0.0
+
+    def command(self, mode, values) -> None:
+        self.motor = float(values[0])
+
+    def read(self) -> Reading:
+        self.theta += 0.1 * (1.0 - self.theta)
+        return Reading(np.array([self.motor]), np.array([10.0]), np.array([25.0]),
+                       np.array([self.theta]))
+
+
+def _reached_after(config) -> int:
+    from pimbs_hw.collection.settle import hold_until_settled
+
+    arm = CreepingJoints()
+    clock = iter(np.arange(0.0, 1e4, 0.01))
+    held = hold_until_settled(arm, "length", np.array([0.0]), config,
+                              clock=lambda: float(next(clock)), sleep=lambda s: None)
+    assert held.settled
+    return held.readings
+
+
+def test_at_the_overshoot_an_arm_that_swings_is_waited_for_and_a_quasi_static_one_is_not():
+    """The final approach must not start while an arm with inertia still moves; the built-in
+    quasi-static arm cannot swing, so only its motors are waited for (its joints creep on
+    toward the pose, and the final settle waits for them)."""
+    from pimbs_hw.collection.settle import SettleConfig
+
+    settle = SettleConfig()
+    tol = np.array([np.inf])
+    swinging = _reached_after(settle.overshot(1e-3, tol))
+    quasi_static = _reached_after(settle.overshot(1e-3, tol, swings=False))
+    assert quasi_static <= settle.min_readings
+    # the joints crept until their drift over the window fell below the joint tolerance
+    assert swinging > 40

@@ -179,9 +179,16 @@ class LoadGuard:
             k = int(over[np.argmax(reading.tension[over] - self.limit[over])])
             raise Overload(f"{self.muscles[k]} pulled {reading.tension[k]:.0f} N (load limit "
                            f"{self.limit[k]:.0f} N)", reading, k)
-        if self.pose is not None and reading.theta is not None:
-            off = np.abs(reading.theta - self.pose)
-            if off.max() > self.excursion:
-                raise Overload(f"the joints ran {off.max():.2f} rad off the pose (limit "
-                               f"{self.excursion:g} rad)", reading)
+        if self.pose is not None:
+            self.check_pose(reading, self.pose)
         return reading
+
+    def check_pose(self, reading: Reading, pose: np.ndarray) -> None:
+        """``Overload`` if the joints at ``reading`` are further than ``excursion`` from
+        ``pose`` (nothing to check without joint encoders)."""
+        if reading.theta is None:
+            return
+        off = np.abs(reading.theta - pose)
+        if off.max() > self.excursion:
+            raise Overload(f"the joints ran {off.max():.2f} rad off the pose (limit "
+                           f"{self.excursion:g} rad)", reading)

@@ -177,6 +177,7 @@ class Collector:
         self.move = move or MoveConfig()
         if getattr(link, "quasi_static", False):  # nothing swings: no gentle loading needed
             self.move = dataclasses.replace(self.move, quasi_static=True)
+        self._swings = not self.move.quasi_static  # wait for joints at rest before loading
         self.floor = np.array([m.f_floor for m in model.robot.muscles])
         # relaxing keeps the arm in its routed range (``relax.relax_fall``): it then starts,
         # and after a pose given up starts over, from the relaxed rest; else it is held
@@ -223,21 +224,30 @@ class Collector:
 
     def _load(self, target: Target, reading: Reading, theta: np.ndarray) -> Settled:
         """Move to the pose at low tension, remove the slack past the holding and back, and
-        settle (``Overload`` if a muscle pulls past the load limit on the way)."""
+        settle (``Overload`` if a muscle pulls past the load limit on the way, or the joints
+        end up off the pose).
+
+        The joints are watched from the end of the move on an arm that swings, where running
+        off the pose slams a held wire. The quasi-static arm cannot swing and is not waited
+        for before loading, so its joints still creep toward the pose while the slack is taken
+        up: it is judged at the settled pose."""
         model, muscles, cfg = self.model, self.model.muscles, self.move
         way = move(model, reading, theta, target, cfg, self.plan.balance)
         with self.link.watching(), _way_there(way):
-            run_ramp(self.link, way)
-            moved = hold_until_settled(self.link, "length", target.approach_length,
-                                       self.settle.reached(), muscles)
-            self.link.pose = target.theta  # from here on the arm stays near the pose
-            run_ramp(self.link, take_up_slack(model, moved.reading, target, cfg,
+            moved = run_ramp(self.link, way)
+            if self._swings:
+                moved = hold_until_settled(self.link, "length", target.approach_length,
+                                           self.settle.reached(), muscles).reading
+                self.link.pose = target.theta  # from here on the arm stays near the pose
+            run_ramp(self.link, take_up_slack(model, moved, target, cfg,
                                               target.overshoot_command))
             over = hold_until_settled(self.link, target.hold_mode, target.overshoot_command,
                                       self._overshot(target), muscles)
             run_ramp(self.link, take_up_slack(model, over.reading, target, cfg))
-            return hold_until_settled(self.link, target.hold_mode, target.hold_command,
+            held = hold_until_settled(self.link, target.hold_mode, target.hold_command,
                                       self.settle, muscles)
+            self.link.check_pose(held.reading, target.theta)
+            return held
 
     def _start_over(self) -> Reading:
         """The arm relaxed and at rest, where relaxing keeps it in its routed range, else held
@@ -328,7 +338,7 @@ class Collector:
         in the tension error that stretches the wire by as much)."""
         tension = np.where(target.held, target.tension, target.overshoot_command)
         tension_tol = (1.0 + np.abs(tension)) * np.expm1(self.model.K * OVERSHOOT_TOL)
-        return self.settle.overshot(OVERSHOOT_TOL, np.maximum(tension_tol, 1.0))
+        return self.settle.overshot(OVERSHOOT_TOL, np.maximum(tension_tol, 1.0), self._swings)
 
     def _row(self, i: int, theta_command: np.ndarray, held: Settled) -> dict[str, Any]:
         r = held.reading

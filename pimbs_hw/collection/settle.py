@@ -44,24 +44,31 @@ class SettleConfig:
     def meta(self) -> dict:
         return {k: v for k, v in asdict(self).items() if k != "poll"}
 
-    def reached(self, length_tol: float = 1e-3) -> SettleConfig:
-        """End of a move: motors within ``length_tol`` of their commands and the joints at
-        rest (the usual joint tolerance and window).
+    def reached(self, length_tol: float = 1e-3, swings: bool = True) -> SettleConfig:
+        """End of a move: motors within ``length_tol`` of their commands and, on an arm that
+        ``swings``, the joints at rest (the usual joint tolerance and window).
 
         The slack removal that follows must not start while the arm still swings: under real
         dynamics (a MuJoCo plant, a real arm) a swinging arm runs into a held antagonist and
         its tension spikes past the ceiling. Tensions may still be far from their holding.
+        An arm without inertia (the quasi-static simulated arm) cannot swing: its joints only
+        creep toward the commands' equilibrium, which the slack removal ramps from and the
+        final settle waits for, so only the motors are waited for, with no quiet window.
         """
-        return replace(self, length_tol=length_tol, tension_tol=np.inf, fixed_wait=None)
+        if swings:
+            return replace(self, length_tol=length_tol, tension_tol=np.inf, fixed_wait=None)
+        return replace(self, length_tol=length_tol, tension_tol=np.inf, theta_tol=np.inf,
+                       window=0.0, min_readings=2, fixed_wait=None)
 
-    def overshot(self, length_tol: float, tension_tol: np.ndarray) -> SettleConfig:
+    def overshot(self, length_tol: float, tension_tol: np.ndarray, swings: bool = True
+                 ) -> SettleConfig:
         """At the overshoot before the final approach: lengths and tensions both reached.
 
         The final ramp must start (nearly) from the overshoot itself, or the last motion into
         the pose is shorter than planned and may not reverse the friction. ``tension_tol``
         may be per muscle (N; e.g. the tension error that stretches a wire ``length_tol``).
         """
-        return replace(self.reached(length_tol), tension_tol=tension_tol)
+        return replace(self.reached(length_tol, swings), tension_tol=tension_tol)
 
 
 @dataclass
