@@ -6,6 +6,8 @@ not developed on) and on PIMBS' own simulated arm for the detectability limits.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -261,3 +263,33 @@ def test_units_the_reference_wants_just_as_much_are_dropped_one_by_one():
     assert reference_units(cand) == []  # both: the veto of the whole candidate decides
     cand.ref_fit = fit([-0.35, 0.0, 0.0], [0.04, 0.0014, 0.0318])
     assert reference_units(cand) == []  # the reference wants neither
+
+
+def test_a_fit_stepping_where_the_corrections_overflow_steps_back(tmp_path, monkeypatch):
+    """Effects that trade off against each other can drive a parameter past anything
+    physical, where undoing it overflows (a capstan exponent, a gain near −1). Such a trial
+    point is a step the search rejects, not a crash of the whole diagnosis: here the
+    corrections are made to overflow past a gain of 0.08 (the concealed gain is 0.15), and
+    the fit stops short of that wall, finite and still far better than no effect."""
+    import pimbs_learn.diagnosis.fit as fit_module
+
+    arm = ArmModel.load(ROBOT_2DOF)
+    real, ref = _pair(tmp_path, arm, 60, ["tension_gain:0.15,muscles=m1"], map_kind="atl")
+    paired = pair(read_recording(real), read_recording(ref), None)
+    physics, _ = build_physics(paired, None)
+    # the body schema learned from the real lengths, as for an arm routed otherwise
+    physics = dataclasses.replace(physics, tied=None, _cache={})
+    data, units = paired.real, [Unit("tension_gain", 1)]
+    null = fit_effects(physics, data, [])
+    assert fit_effects(physics, data, units).params[0] > 0.1  # unhindered, it goes past
+
+    def overflowing(physics, data, units, params):
+        state = apply_effects(physics, data, units, params)
+        if params[0] > 0.08:
+            state.tension[:, 0] *= np.exp(1e3)  # what an overflowing correction leaves
+        return state
+
+    monkeypatch.setattr(fit_module, "apply_effects", overflowing)
+    stopped = fit_effects(physics, data, units)
+    assert 0.0 < stopped.params[0] <= 0.08
+    assert np.isfinite(stopped.log_lik) and stopped.log_lik > null.log_lik + 10

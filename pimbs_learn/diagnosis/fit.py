@@ -15,6 +15,7 @@ from pimbs_learn.diagnosis.model import (
     Fit,
     Physics,
     Samples,
+    State,
     Unit,
     _moves_pose,
     apply_effects,
@@ -26,6 +27,8 @@ from pimbs_learn.diagnosis.model import (
 )
 
 SIGMA_FLOOR = (1e-7, 1e-5)  # m, N·m: never trust a channel more than its sensors allow
+# whitened residual of every row at a trial point whose corrections are not finite numbers
+DIVERGED = 1e8
 
 
 def _whiten(r_len, r_tau, sigma_len, sigma_tau) -> np.ndarray:
@@ -37,27 +40,56 @@ def _sigmas(r_len: np.ndarray, r_tau: np.ndarray) -> tuple[np.ndarray, np.ndarra
             np.maximum(np.sqrt(np.mean(r_tau**2, 0)), SIGMA_FLOOR[1]))
 
 
+def _finite(state: State) -> bool:
+    parts = (state.theta, state.tension, state.kappa, state.tau, state.scale, state.length)
+    return bool(np.isfinite(state.len_scale)) and all(
+        part is None or bool(np.isfinite(part).all()) for part in parts)
+
+
 def fit_effects(physics: Physics, data: Samples, units: list[Unit],
                 x0: np.ndarray | None = None, sigma: tuple | None = None,
                 key=None, passes: int = 2) -> Fit:
-    """Maximum-likelihood parameters of ``units`` on ``data`` (schema profiled out)."""
+    """Maximum-likelihood parameters of ``units`` on ``data`` (schema profiled out).
+
+    A trial point whose corrections overflow (a capstan exponent or a gain driven far past
+    anything physical while several effects trade off against each other) scores
+    ``DIVERGED`` on every residual, so the search steps back from it: an explanation that
+    only fits by running away loses to the others instead of ending the diagnosis."""
     cache_key = None if _moves_pose(units) else key
 
     def resid_at(params: np.ndarray):
-        state = apply_effects(physics, data, units, params)
-        weights = fit_schema(physics, state, data, cache_key)
-        return residuals(physics, state, data, weights, cache_key), weights
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            state = apply_effects(physics, data, units, params)
+            if not _finite(state):
+                return None, None
+            weights = fit_schema(physics, state, data, cache_key)
+            r = residuals(physics, state, data, weights, cache_key)
+        if not all(np.isfinite(part).all() for part in r):
+            return None, None
+        return r, weights
+
+    def whitened(params: np.ndarray, s_len: np.ndarray, s_tau: np.ndarray) -> np.ndarray:
+        r, _ = resid_at(params)
+        return np.full(size, DIVERGED) if r is None else _whiten(*r, s_len, s_tau)
+
+    def accepted(params: np.ndarray):  # the start, or a point the search kept: finite
+        r, weights = resid_at(params)
+        if r is None:
+            raise FloatingPointError(f"effect parameters {params} of {units} give corrections "
+                                     "that are not finite numbers")
+        return r, weights
 
     params = np.zeros(len(units)) if x0 is None else np.asarray(x0, float)
-    (r_len, r_tau), weights = resid_at(params)
+    (r_len, r_tau), weights = accepted(params)
+    size = r_len.size + r_tau.size
     s_len, s_tau = sigma if sigma is not None else _sigmas(r_len, r_tau)
     cov = None
     if units:
         for _ in range(passes):  # fit, re-estimate the noise levels, fit again
-            sol = least_squares(lambda p, a=s_len, b=s_tau: _whiten(*resid_at(p)[0], a, b),
-                                params, method="lm", x_scale="jac", max_nfev=200 * len(units))
+            sol = least_squares(whitened, params, args=(s_len, s_tau), method="lm",
+                                x_scale="jac", max_nfev=200 * len(units))
             params = sol.x
-            (r_len, r_tau), weights = resid_at(params)
+            (r_len, r_tau), weights = accepted(params)
             s_len, s_tau = _sigmas(r_len, r_tau)
         jac = sol.jac
         dof = max(len(sol.fun) - len(params), 1)
