@@ -79,9 +79,12 @@ sys.path.insert(0, str(ROOT))
 from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 
 # The split, fixed before any diagnosis ran: even seeds 0-38 develop (the arms the learning
-# work develops on); odd seeds 41-79 judge (odd seeds 1-39 and even 40-78: neither).
+# work develops on); odd seeds 41-79 judge (odd seeds 1-39 and even 40-78: neither). Once the
+# judging split had been looked at, odd seeds 1-39 became a second judging split (``judge2``,
+# the same layout of families and simulators), for a rule changed after that look.
 SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
-          "judge": [s for s in range(41, 80) if s % 2 == 1]}
+          "judge": [s for s in range(41, 80) if s % 2 == 1],
+          "judge2": [s for s in range(1, 40) if s % 2 == 1]}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this

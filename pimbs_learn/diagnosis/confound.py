@@ -40,6 +40,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
+from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, MIN_SAMPLES
 from pimbs_learn.diagnosis.model import (
     EFFECTS,
     Fit,
@@ -82,10 +83,12 @@ class Verdict:
     rivals: list[Rival]
     # (effect, units, per-recording likelihood ratio of A over B): recordings that disagree
     contradictions: list = field(default_factory=list)
+    # A passes only with the loadcell branches guessed where the readings cannot tell them
+    branch_bound: bool = False
 
     @property
     def identified(self) -> bool:
-        return not self.rivals and not self.contradictions
+        return not self.rivals and not self.contradictions and not self.branch_bound
 
 
 def passes(lr: float, df: int, n: int) -> bool:
@@ -154,13 +157,63 @@ def rival_unit_sets(physics: Physics, data: Samples, without: Fit, named: Candid
     return sets
 
 
+def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:
+    """(B, M) rows whose loadcell branch the readings cannot tell, or None (no hysteresis
+    fitted, or every branch told).
+
+    A loadcell's branch is read from the change of its reading into the row
+    (``inputs.collection_order``). That change is the tension's change plus the reading
+    noise, plus, where the branch flipped, the jump 2h between the branches against it: a
+    change smaller than 2h past the dead band may come from a flip or from none."""
+    h = [abs(p) for u, p in zip(final.units, final.params, strict=True)
+         if u.effect == "loadcell_hysteresis"]
+    if data.branch is None or data.prev_tension is None or not h or not h[0]:
+        return None
+    unsure = np.abs(data.tension - data.prev_tension) < 2.0 * h[0] + BRANCH_DEADBAND
+    return unsure if unsure.any() else None
+
+
+def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) -> bool:
+    """Whether ``named`` passes the naming test only with the loadcell branches guessed
+    where the readings cannot tell them.
+
+    On a recording whose tensions barely move (a first session near the middle of the
+    ranges, every muscle at its floor) most rows' branches are guesses, and a wrong guess
+    on one row in seven leaves ±2h that follows the direction each wire last moved: a
+    stiffness change or an offset on that loadcell then fits it, on arms with nothing wrong
+    (docs/diagnosis-notebook.md). So each muscle of an effect that acts per loadcell is
+    refitted, with and without it, on the rows whose branch of that loadcell is told: a
+    muscle that fails there (or has too few such rows to name anything) rests on the
+    guesses, not on the arm. Effects of joints and links are not judged this way."""
+    unsure = unsure_branches(data, final)
+    if unsure is None or named.effect not in PER_MUSCLE:
+        return False
+    for unit in named.units:
+        if unit.index < 0:
+            continue
+        sure = np.flatnonzero(~unsure[:, unit.index])
+        if len(sure) < MIN_SAMPLES:
+            return True
+        rows = data.rows(sure)
+        keep = [u for u in final.units if u != unit]
+        with_a = fit_effects(physics, rows, final.units, x0=final.params)
+        without_a = fit_effects(physics, rows, keep, x0=_sub(final, keep))
+        if not passes(_lr(with_a, without_a), 1, rows.n):
+            return True
+    return False
+
+
 def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
           effects: tuple[str, ...] = EFFECTS) -> Verdict:
-    """Refit every other candidate effect in ``named``'s place; keep those it cannot beat."""
+    """Refit every other candidate effect in ``named``'s place; keep those it cannot beat
+    (none are sought for a name that rests on guessed loadcell branches: ``branch_bound``)."""
     keep = [u for u in final.units if u not in named.units]
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
+    if branch_bound(physics, data, final, named):
+        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
+                       branch_bound=True)
     rivals, contradictions = [], []
     for effect in effects:
         if effect == named.effect:

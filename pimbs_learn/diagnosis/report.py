@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from pimbs_learn.diagnosis.confound import Verdict
+from pimbs_learn.diagnosis.confound import PER_MUSCLE, Verdict
 from pimbs_learn.diagnosis.detect import detectable_text
 from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
@@ -165,6 +165,22 @@ def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:
                  "likelihood_ratio_of_first_over_rival": dict(zip(recordings, per,
                                                                   strict=True))}
                 for effect, units, per in verdict.contradictions]}
+
+
+def branch_entry(verdict: Verdict, muscles: list[str], final: Fit) -> dict:
+    """An effect that fits only with loadcell branches the readings cannot tell
+    (``confound.branch_bound``): the mismatch is reported, not the name."""
+    h = next(abs(float(p)) for u, p in zip(final.units, final.params, strict=True)
+             if u.effect == "loadcell_hysteresis")
+    effect = verdict.named.effect
+    on = sorted({muscles[u.index] for u in verdict.named.units if u.index >= 0}
+                ) if effect in PER_MUSCLE else []
+    return {"why": (f"{effect}{' on ' + ', '.join(on) if on else ''} fits only where the "
+                    "loadcells' branches are guessed (readings that moved less than their "
+                    f"{h:.2f} N hysteresis can hide), and hysteresis on a wrong guess looks "
+                    "like it; poses that load and unload each wire by several newtons "
+                    "would tell"),
+            "candidates": [effect, "loadcell_hysteresis"]}
 
 
 def unexplained(ambiguous: list[dict], residual: dict, location: dict,

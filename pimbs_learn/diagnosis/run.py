@@ -23,6 +23,7 @@ from pimbs_learn.diagnosis.locate import locate
 from pimbs_learn.diagnosis.model import EFFECTS, apply_effects, evaluate, sensor_units
 from pimbs_learn.diagnosis.report import (
     ambiguity_entry,
+    branch_entry,
     disputed_entry,
     effect_entry,
     unexplained,
@@ -89,8 +90,9 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     sure = [v.named for v in verdicts if v.identified]
     unsure = [v for v in verdicts if v.rivals and not v.contradictions]
     disputed = [v for v in verdicts if v.contradictions]
+    guessed = [v for v in verdicts if v.branch_bound]
     corrected = final
-    if unsure or disputed:  # what --corrected undoes: the identified effects alone
+    if unsure or disputed or guessed:  # what --corrected undoes: the identified effects
         units = [*null.units, *(u for c in sure for u in c.units)]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
@@ -125,7 +127,9 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "effects": entries,
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, residual, location,
-                                   [disputed_entry(v, sources) for v in disputed]),
+                                   [disputed_entry(v, sources) for v in disputed]
+                                   + [branch_entry(v, paired.muscles, final)
+                                      for v in guessed]),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
