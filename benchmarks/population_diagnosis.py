@@ -209,6 +209,11 @@ def reference_of(line: dict[str, Any], pop: Path, folder: Path, seed: int,
                   reuse=poses is None)  # chosen poses: not part of the key, never reused
 
 
+class NoNarrowSession(RuntimeError):
+    """An arm whose muscles at their floors hold too few poses near the middle of its ranges
+    for a narrow session."""
+
+
 def narrow_plan(line: dict[str, Any], pop: Path):
     """The narrow session's poses (module docstring): seeded, each one held by the muscles at
     their own floors; a draw that cannot be held is drawn again."""
@@ -230,8 +235,8 @@ def narrow_plan(line: dict[str, Any], pop: Path):
             if len(poses) == NARROW_ROWS:
                 break
     else:
-        raise RuntimeError(f"{line['arm']}: fewer than {NARROW_ROWS} holdable poses in the "
-                           f"middle {NARROW_BAND:.0%} of the ranges")
+        raise NoNarrowSession(f"fewer than {NARROW_ROWS} holdable poses in the middle "
+                              f"{NARROW_BAND:.0%} of the ranges")
     floors = np.tile(f_floor, (NARROW_ROWS, 1))
     return PosePlan(poses=np.array(poses), floors=floors, drawn_floors=np.zeros_like(floors),
                     replaced=())
@@ -554,8 +559,17 @@ def main() -> None:
     if a.arms:
         arms = [d for d in arms if d["arm"] in set(a.arms)]
     done = {(r["arm"], r["kind"]) for r in read_lines(results)}
+    no_narrow = set()
+    for d in arms if {"narrow", "narrow-null"} & set(a.kinds) else ():
+        try:
+            narrow_plan(d, pop)
+        except NoNarrowSession as exc:
+            no_narrow.add(d["arm"])
+            print(f"{d['arm']}: no narrow session ({exc})", flush=True)
     todo = [(d, k) for d in arms for k in a.kinds
-            if (d["arm"], k) not in done and (k in ("recording", "narrow") or (
+            if (d["arm"], k) not in done
+            and not (k.startswith("narrow") and d["arm"] in no_narrow)
+            and (k in ("recording", "narrow") or (
                 k in ("null", "narrow-null") and d["truth"]["effects"]) or (
                 k == "probe" and d["simulator"] == "mujoco"))]
     todo.sort(key=lambda t: t[0]["simulator"] != "mujoco")  # the slow ones first

@@ -184,10 +184,16 @@ def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) 
     (docs/diagnosis-notebook.md). So each muscle of an effect that acts per loadcell is
     refitted, with and without it, on the rows whose branch of that loadcell is told: a
     muscle that fails there (or has too few such rows to name anything) rests on the
-    guesses, not on the arm. Effects of joints and links are not judged this way."""
+    guesses, not on the arm. Effects of joints and links are not judged this way, nor
+    any effect on a recording that shows no hysteresis (its fit does not pass the naming
+    test against the same model without it)."""
     unsure = unsure_branches(data, final)
     if unsure is None or named.effect not in PER_MUSCLE:
         return False
+    keep = [u for u in final.units if u.effect != "loadcell_hysteresis"]
+    no_hysteresis = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
+    if not passes(_lr(final, no_hysteresis), 1, data.n):
+        return False  # no hysteresis the recording shows: a wrong branch costs nothing
     for unit in named.units:
         if unit.index < 0:
             continue
