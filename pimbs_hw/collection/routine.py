@@ -19,10 +19,11 @@ itself when it rests (``ArmLink.at_rest``); every other arm is judged from its r
 
 From the move on, the routine watches below the boards' ceiling (``link.LoadGuard``): a wire
 past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
-the slack removal starts, gives that pose up: it is unloaded from where the arm is, recorded
-as skipped with a warning naming what happened, the arm starts over relaxed (where that is
-safe), and the collection goes on. A run that keeps fewer than half of the poses it tried is
-reported as failed (``Summary.failed``), not complete. A description
+the slack removal starts (on the quasi-static arm, whose joints still creep toward the pose
+while its wires load: where it settles), gives that pose up: it is unloaded from where the
+arm is, recorded as skipped with a warning naming what happened, the arm starts over
+relaxed (where that is safe), and the collection goes on. A run that keeps fewer than half
+of the poses it tried is reported as failed (``Summary.failed``), not complete. A description
 that gets a load or a moment arm wrong fails on a few poses, not the whole collection; the
 boards' ceiling still stops everything that the guard cannot see coming.
 """
