@@ -450,3 +450,38 @@ def test_an_sdo_timeout_while_the_host_could_not_run_is_asked_again(monkeypatch)
     with pytest.raises(BoardSilent):
         proto._sdo(0, answers_second_time)  # the host could run: the drive was silent
     assert len(calls) == 1
+
+
+def test_a_late_answer_to_an_earlier_request_is_dropped_and_asked_again(monkeypatch):
+    """Under load, a request asked again after a timeout gets two answers; the second can
+    arrive after the client emptied its queue for the next request, which then reads an
+    answer for another object. That is no silent drive: the stale answer is dropped and
+    the request asked again, with the host never starved."""
+    import queue
+    from types import SimpleNamespace
+
+    from canopen.sdo import SdoCommunicationError
+
+    from pimbs_hw.protocol import cia402
+
+    stale = queue.Queue()
+    stale.put(b"late")
+    proto = object.__new__(cia402.Cia402Protocol)
+    proto.nodes = [SimpleNamespace(id=4, sdo=SimpleNamespace(responses=stale))]
+    proto.drive = SimpleNamespace(eds=SimpleNamespace(name="drive.eds"))
+    proto.specs = [SimpleNamespace(name="m3")]
+    proto.board_ids = [4]
+    calls = []
+
+    def late_answer_first():
+        calls.append(1)
+        if len(calls) == 1:
+            raise SdoCommunicationError(
+                "Node returned a value for 0x1018:02 instead, maybe there is another SDO "
+                "client communicating on the same SDO channel?")
+        return 0x13
+
+    monkeypatch.setattr(cia402, "host_lag",
+                        lambda: SimpleNamespace(starved=lambda t0, t1: 0.0))
+    assert proto._sdo(0, late_answer_first) == 0x13 and len(calls) == 2
+    assert proto.nodes[0].sdo.responses.empty()  # the stale answer was dropped

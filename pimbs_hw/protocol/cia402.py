@@ -36,6 +36,7 @@ its synchronous TPDOs, statusword included, need the SYNC it no longer hears.
 from __future__ import annotations
 
 import math
+import queue
 import struct
 import time
 from collections.abc import Sequence
@@ -60,6 +61,8 @@ SDO_TIMEOUT_S = 0.5  # per request; a drive on a loaded bus answers within milli
 # it. A drive that does not answer a host that could run is silent at the first timeout.
 SDO_STALL_S = 0.05
 SDO_STALL_RETRIES = 3
+# how canopen's SDO client says the answer it read belongs to another object
+STALE_ANSWER = "Node returned a value for"
 STATE_WAIT_S = 1.0  # per state machine step
 HEARTBEAT_MISSES = 3  # producer periods without a heartbeat = the drive is lost
 OPERATIONAL = 5  # NMT state code in a heartbeat
@@ -192,15 +195,22 @@ class Cia402Protocol(BoardProtocol):
 
     def _sdo(self, k: int, call):
         """One SDO exchange; a silent or refusing drive is a named stop. A timeout during
-        which this process itself could not run is not the drive's silence: asked again."""
+        which this process itself could not run is not the drive's silence: asked again.
+        Nor is an answer to another object: the late answer to a request asked again after
+        such a timeout, which arrived after the client last emptied its queue; it is
+        dropped and the request asked again."""
         node, lag, retries = self.nodes[k], host_lag(), 0
         while True:
             t0 = time.monotonic()
             try:
                 return call()
             except SdoCommunicationError as exc:
-                if retries < SDO_STALL_RETRIES and lag.starved(t0, time.monotonic()) >= SDO_STALL_S:
+                stale = STALE_ANSWER in str(exc)
+                if retries < SDO_STALL_RETRIES and (
+                        stale or lag.starved(t0, time.monotonic()) >= SDO_STALL_S):
                     retries += 1
+                    if stale:
+                        node.sdo.responses = queue.Queue()
                     continue
                 raise BoardSilent(f"no SDO answer from CANopen node {node.id} "
                                   f"({self.drive.eds.name}): {exc}; is the drive powered, its "
