@@ -404,6 +404,21 @@ def test_canopen_ids_that_collide_with_another_board_are_refused(tmp_path):
         check_ids(robot, protocols_for(robot))
 
 
+def _bare_protocol(node, muscle: str):
+    """A ``Cia402Protocol`` with one drive, ``node``, and nothing else set up: what its SDO
+    exchanges (``_sdo``) need."""
+    from types import SimpleNamespace
+
+    from pimbs_hw.protocol import cia402
+
+    proto = object.__new__(cia402.Cia402Protocol)
+    proto.nodes = [node]
+    proto.drive = SimpleNamespace(eds=SimpleNamespace(name="drive.eds"))
+    proto.specs = [SimpleNamespace(name=muscle)]
+    proto.board_ids = [node.id]
+    return proto
+
+
 def test_an_sdo_timeout_while_the_host_could_not_run_is_asked_again(monkeypatch):
     """A timeout during which this process was starved (a loaded host: the answer may have
     come while nobody read it) is asked again; one while the host could run is the drive's
@@ -414,11 +429,7 @@ def test_an_sdo_timeout_while_the_host_could_not_run_is_asked_again(monkeypatch)
 
     from pimbs_hw.protocol import cia402
 
-    proto = object.__new__(cia402.Cia402Protocol)
-    proto.nodes = [SimpleNamespace(id=3)]
-    proto.drive = SimpleNamespace(eds=SimpleNamespace(name="drive.eds"))
-    proto.specs = [SimpleNamespace(name="m0")]
-    proto.board_ids = [3]
+    proto = _bare_protocol(SimpleNamespace(id=3), "m0")
     calls = []
 
     def answers_second_time():
@@ -466,11 +477,7 @@ def test_a_late_answer_to_an_earlier_request_is_dropped_and_asked_again(monkeypa
 
     stale = queue.Queue()
     stale.put(b"late")
-    proto = object.__new__(cia402.Cia402Protocol)
-    proto.nodes = [SimpleNamespace(id=4, sdo=SimpleNamespace(responses=stale))]
-    proto.drive = SimpleNamespace(eds=SimpleNamespace(name="drive.eds"))
-    proto.specs = [SimpleNamespace(name="m3")]
-    proto.board_ids = [4]
+    proto = _bare_protocol(SimpleNamespace(id=4, sdo=SimpleNamespace(responses=stale)), "m3")
     calls = []
 
     def late_answer_first():

@@ -157,6 +157,12 @@ def rival_unit_sets(physics: Physics, data: Samples, without: Fit, named: Candid
     return sets
 
 
+def hysteresis(fit: Fit) -> float:
+    """The loadcells' fitted hysteresis h, N (0 where the fit has none)."""
+    return next((abs(float(p)) for u, p in zip(fit.units, fit.params, strict=True)
+                 if u.effect == "loadcell_hysteresis"), 0.0)
+
+
 def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:
     """(B, M) rows whose loadcell branch the readings cannot tell, or None (no hysteresis
     fitted, or every branch told).
@@ -165,11 +171,10 @@ def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:
     (``inputs.collection_order``). That change is the tension's change plus the reading
     noise, plus, where the branch flipped, the jump 2h between the branches against it: a
     change smaller than 2h past the dead band may come from a flip or from none."""
-    h = [abs(p) for u, p in zip(final.units, final.params, strict=True)
-         if u.effect == "loadcell_hysteresis"]
-    if data.branch is None or data.prev_tension is None or not h or not h[0]:
+    h = hysteresis(final)
+    if data.branch is None or data.prev_tension is None or not h:
         return None
-    unsure = np.abs(data.tension - data.prev_tension) < 2.0 * h[0] + BRANCH_DEADBAND
+    unsure = np.abs(data.tension - data.prev_tension) < 2.0 * h + BRANCH_DEADBAND
     return unsure if unsure.any() else None
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from pimbs_learn.diagnosis.confound import PER_MUSCLE, Verdict
+from pimbs_learn.diagnosis.confound import PER_MUSCLE, Verdict, hysteresis
 from pimbs_learn.diagnosis.detect import detectable_text
 from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
@@ -170,8 +170,7 @@ def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:
 def branch_entry(verdict: Verdict, muscles: list[str], final: Fit) -> dict:
     """An effect that fits only with loadcell branches the readings cannot tell
     (``confound.branch_bound``): the mismatch is reported, not the name."""
-    h = next(abs(float(p)) for u, p in zip(final.units, final.params, strict=True)
-             if u.effect == "loadcell_hysteresis")
+    h = hysteresis(final)
     effect = verdict.named.effect
     on = sorted({muscles[u.index] for u in verdict.named.units if u.index >= 0}
                 ) if effect in PER_MUSCLE else []
