@@ -22,6 +22,7 @@ import click
 from pimbs_cli.common import (
     check_output,
     load_usable_arm,
+    plant_damping_option,
     robot_option,
     rows_as_samples,
     user_errors,
@@ -98,6 +99,7 @@ def _stop_on_signals() -> Iterator[None]:
 @click.option("--plant", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="simulated arm only: an MJCF that MuJoCo integrates as the true arm "
                    "(mj_step dynamics; may differ from --robot, as a real arm does)")
+@plant_damping_option()
 @click.option("--mock-speed", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="simulated arm only: time speed-up of its dynamics")
 @click.option("--poses-file", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -112,8 +114,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             resume: bool, faults: tuple[str, ...], conceal: tuple[str, ...],
             settle_tol: float, settle_length_tol: float, settle_window: float,
             settle_timeout: float, fixed_wait: float | None, schema_dir: Path | None,
-            plant: Path | None, mock_speed: float, calibration: Path | None,
-            poses_file: Path | None = None) -> None:
+            plant: Path | None, plant_damping: str, mock_speed: float,
+            calibration: Path | None, poses_file: Path | None = None) -> None:
     """Collect SAMPLES static poses: move, remove slack, settle, read, write one row each.
 
     Every row is on disk before the next pose, so Ctrl-C, kill -9, a power cut or a full disk
@@ -157,7 +159,8 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     if plan.scaled:
         click.echo(scaled_note(plan.scaled, samples), err=True)
-    rings = "" if plant is None else _plant_notes(plant, model, settle.timeout)
+    rings, damping = (("", {}) if plant is None else
+                      _plant_notes(plant, model, settle.timeout, plant_damping == "calm"))
     hold = _relax_note(model, simulated)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     # one writer per recording for the whole run: a second collect (or --resume) on the same
@@ -169,21 +172,22 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
             return
         with _stop_on_signals():
             _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-                 zero_m, note, plant, hold, rings)
+                 zero_m, note, plant, hold, rings, damping)
 
 
-def _plant_notes(plant: Path, model, wait_s: float) -> str:
-    """Before the arm moves: one line when the plant arm rings longer than a pose may settle,
-    one when it must be integrated with a finer timestep than its file's (and a plant that
-    does not fit the description is refused here, before connecting). Returns the ringing
-    line ('' if none), for a stop to name the swing as its cause."""
+def _plant_notes(plant: Path, model, wait_s: float, calm: bool) -> tuple[str, dict]:
+    """Before the arm moves: one line when the plant arm rings longer than a pose may settle
+    (and is calmed, ``calm``, or only warned about), one when it must be integrated with a
+    finer timestep than its file's (and a plant that does not fit the description is
+    refused here, before connecting). Returns the ringing warning ('' if none, or calmed),
+    for a stop to name the swing as its cause, and the joint damping the plant runs with."""
     from pimbs_hw.mock.mujoco_plant import plant_notes
 
-    rings, step = plant_notes(plant, model.robot, wait_s)
+    rings, step, damping = plant_notes(plant, model.robot, wait_s, calm)
     for note in (rings, step):
         if note:
             click.echo(note, err=True)
-    return rings
+    return ("" if calm else rings), damping
 
 
 def _relax_note(model, simulated: bool) -> bool:
@@ -246,7 +250,7 @@ def _zeros(robot, calibration: Path | None, simulated: bool) -> tuple[object, st
 
 
 def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
-         zero_m=None, note=None, plant=None, hold=False, rings="") -> None:
+         zero_m=None, note=None, plant=None, hold=False, rings="", damping=None) -> None:
     """Connect, collect with the live panel, and report however it ends."""
     from rich.console import Console
 
@@ -262,7 +266,8 @@ def _run(port, model, plan, writer, start, settle, moves, faults, conceal, seed,
     reason: str | None = None  # what happened, for the summary
     try:
         with open_link(port, model.robot, faults=faults, conceal=conceal, seed=seed,
-                       speed=moves.speed, zero_m=zero_m, plant=plant, hold=hold) as link:
+                       speed=moves.speed, zero_m=zero_m, plant=plant,
+                       plant_damping=damping, hold=hold) as link:
             if note:
                 console.print(note)
             collector = Collector(link, model, plan, writer, start, settle, move=moves,

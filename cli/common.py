@@ -78,6 +78,16 @@ def force_option() -> Callable[[F], F]:
                         help="replace the output if it already exists")
 
 
+def plant_damping_option() -> Callable[[F], F]:
+    """`--plant-damping`: whether a barely damped MuJoCo plant gets the joint damping a real
+    arm's drives give it (its file's muscle actuators, which would damp it, are off)."""
+    return click.option("--plant-damping", type=click.Choice(["calm", "file"]), default="calm",
+                        show_default=True,
+                        help="with --plant: calm gives the joints of a plant that rings longer "
+                             "than a pose may settle the damping a real arm's drives give it "
+                             "(said in one line); file runs the plant's own damping")
+
+
 def check_output(path: Path, *, force: bool, what: str = "file",
                  option: str = "--out") -> Path:
     """Refuse, before any work is done, an output that would overwrite or cannot be written.

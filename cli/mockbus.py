@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from pimbs_cli.common import robot_option, user_errors
+from pimbs_cli.common import plant_damping_option, robot_option, user_errors
 
 DEFAULT_PORT = "pty"
 _FORMS = "pty, slcan, or a SocketCAN virtual channel such as vcan0"
@@ -70,6 +70,7 @@ def check_port(port: str) -> str:
 @click.option("--plant", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="an MJCF that MuJoCo integrates as the true arm (mj_step dynamics; may "
                    "differ from --robot, as a real arm does)")
+@plant_damping_option()
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
               help="s to run [default: until Ctrl-C]")
 @click.option("--verbose", is_flag=True,
@@ -77,7 +78,7 @@ def check_port(port: str) -> str:
 @user_errors
 def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
             conceal: tuple[str, ...], seed: int, speed: float, plant: Path | None,
-            duration: float | None, verbose: bool) -> None:
+            plant_damping: str, duration: float | None, verbose: bool) -> None:
     """Run simulated muscle boards of ROBOT on a pty or a local CAN channel until Ctrl-C."""
     from pimbs_calibration.description import load_robot
     from pimbs_hw.errors import PortError
@@ -97,9 +98,10 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
         click.echo("warning: @SAMPLE triggers other than @0 never fire in a standalone mock; "
                    "use @SECONDSs or @CYCLESc", err=True)
     effects = [parse_effect(c, seed=seed) for c in conceal] or None
+    notes, damping = _plant_notes(plant, description, plant_damping == "calm")
     try:
         mock = MockArm(description, link, effect=effects, faults=specs, seed=seed, speed=speed,
-                       plant=plant)
+                       plant=plant, plant_damping=damping)
     except PortError as exc:
         raise click.ClickException(
             f"--port {link}: cannot open it ({exc.problem}); create it first "
@@ -108,13 +110,9 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
     boards = ", ".join(f"{m.name}=board {m.board_id}" for m in description.muscles)
     click.echo(f"simulated {description.name} ({boards}) on {mock.port}")
     if plant is not None:
-        from pimbs_hw.collection.settle import SettleConfig
-        from pimbs_hw.mock.mujoco_plant import plant_notes
-
         click.echo(f"the true arm: {plant}, integrated by MuJoCo")
-        for note in plant_notes(plant, description, SettleConfig().timeout):
-            if note:
-                click.echo(note, err=True)
+        for note in notes:
+            click.echo(note, err=True)
     click.echo(f"connect with: pimbs collect --port {mock.port} --robot {robot}", nl=True)
     with mock:
         try:
@@ -122,3 +120,15 @@ def command(robot: str, link: str, serial: bool, faults: tuple[str, ...],
         except KeyboardInterrupt:
             pass
     click.echo("mockbus stopped")
+
+
+def _plant_notes(plant: Path | None, description, calm: bool
+                 ) -> tuple[list[str], dict[str, float]]:
+    """The plant's lines to show (``plant_notes``) and the joint damping it runs with."""
+    if plant is None:
+        return [], {}
+    from pimbs_hw.collection.settle import SettleConfig
+    from pimbs_hw.mock.mujoco_plant import plant_notes
+
+    rings, step, damping = plant_notes(plant, description, SettleConfig().timeout, calm)
+    return [n for n in (rings, step) if n], damping

@@ -31,28 +31,33 @@ SPEED = 5.0  # the simulated arm's time speed-up: its physics shares this proces
 
 class Disturbed:
     """The simulated arm's link, with something the description does not know at one sample:
-    from the slack removal on (mixed length/tension commands), ``extra`` N more on one
-    wire's loadcell (a snag) or the joints ``swing`` rad off (a pose that runs away).
-    Records every command, with the sample it belongs to."""
+    from the slack removal of that sample's pose on (mixed length/tension commands after
+    its move) until the arm is moved again (the pose given up: a wire moved comes off its
+    snag), ``extra`` N more on one wire's
+    loadcell (a snag) or the joints ``swing`` rad off (a pose that runs away). Records every
+    command, with the sample it belongs to."""
 
     def __init__(self, link, sample: int, muscle: int = 0, extra: float = 0.0,
                  swing: float = 0.0) -> None:
         self.link, self.sample, self.muscle, self.extra, self.swing = (
             link, sample, muscle, extra, swing)
-        self.i, self.mixed, self.sent = -1, False, []
+        self.i, self.mixed, self.sent, self.moves = -1, False, [], 0
 
     def begin_sample(self, index: int) -> None:
         self.i = index
         self.link.begin_sample(index)
 
     def command(self, mode, values) -> None:
+        # moves of the sample's own (all wires in length), each from a slack removal or start
+        self.moves += self.i == self.sample and mode == "length" and (
+            not self.sent or self.sent[-1][1] != "length")
         self.mixed = not isinstance(mode, str)
         self.sent.append((self.i, mode, np.array(values, float)))
         self.link.command(mode, values)
 
     def read(self) -> Reading:
         r = self.link.read()
-        if self.i != self.sample or not self.mixed:
+        if self.i != self.sample or not self.mixed or self.moves != 1:
             return r
         tension = r.tension.copy()
         tension[self.muscle] += self.extra
@@ -76,14 +81,14 @@ class QuasiStatic(Disturbed):
         return self.link.at_rest()
 
 
-def _collect(path, model, disturb: dict, kind: type[Disturbed] = Disturbed
+def _collect(path, model, disturb: dict, kind: type[Disturbed] = Disturbed, sample: int = 2
              ) -> tuple[Collector, Disturbed]:
     plan = CollectionPlan(model, 4, seed=4)
     meta = collection_meta(model, plan.meta(), port="virtual", simulated=True, settle={},
                            move={})
     writer, start = open_recording(path, meta, False)
     with open_link("virtual", model.robot, seed=4, speed=SPEED) as link:
-        arm = kind(link, sample=2, **disturb)
+        arm = kind(link, sample=sample, **disturb)
         collector = Collector(arm, model, plan, writer, start, SettleConfig(window=0.06),
                               move=MoveConfig(speed=SPEED))
         collector.run()
@@ -102,7 +107,7 @@ def test_a_snagged_wire_gives_up_its_pose_and_the_collection_goes_on(model, tmp_
     assert f"(load limit {LOAD_LIMIT * f_max:.0f} N)" in warning
     assert "the plan holds it at" in warning
     # the pose was unloaded to its low-tension approach (the lengths of where the arm stood,
-    # at the pose within microns), then the arm relaxed to start over
+    # at the pose within microns), then the arm went back to the last pose recorded
     plan = CollectionPlan(model, 4, seed=4)
     target = plan.target(2)
     sent = [(mode, values) for i, mode, values in arm.sent if i == 2]
@@ -111,7 +116,21 @@ def test_a_snagged_wire_gives_up_its_pose_and_the_collection_goes_on(model, tmp_
                                atol=2e-5)
     approach = plan.holding(target.theta, target.tension).approach_tension
     np.testing.assert_allclose(last[~target.held], approach[~target.held], rtol=1e-6)
-    assert sent[-1][0] == "relax"
+    # ... loaded as it was held there, where the next move starts: the arm is never relaxed
+    before = plan.target(1)
+    assert sent[-1][0] == before.hold_mode
+    np.testing.assert_allclose(sent[-1][1], before.hold_command)
+    assert not any(mode == "relax" for mode, _ in sent)
+
+
+def test_a_first_pose_given_up_starts_over_from_the_relaxed_arm(model, tmp_path):
+    """Before any pose is recorded there is none to go back to: the arm is relaxed."""
+    f_max = model.robot.muscles[1].f_max
+    collector, arm = _collect(tmp_path / "first.parquet", model,
+                              {"muscle": 1, "extra": f_max}, sample=0)
+    assert collector.summary.skipped == [0]
+    assert read_recording(tmp_path / "first.parquet").sample.tolist() == [1, 2, 3]
+    assert [mode for i, mode, _ in arm.sent if i == 0][-1] == "relax"
 
 
 def test_a_pose_that_runs_away_is_given_up(model, tmp_path):

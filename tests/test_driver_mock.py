@@ -241,6 +241,7 @@ class _StandInModel:
 
     n_muscles, n_joints = 2, 1
     joint_limits = np.array([[-1.0, 1.0]])  # the power-up pose θ = 0 lies within them
+    f_max = np.array([600.0, 600.0])  # each motor heats in proportion to its share of it
 
     def equilibrium(self, mode, command, theta0=None):
         from types import SimpleNamespace

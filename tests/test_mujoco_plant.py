@@ -194,17 +194,44 @@ def test_a_barely_damped_plant_is_named_before_the_arm_moves(tmp_path):
     calm, ringing_xml = _swing(tmp_path, 0.2), _swing(tmp_path, 0.002)
     robot = ArmModel.load(calm).robot
     assert ringing(calm, robot).note(calm, robot.joints, 5.0) == ""
+    assert ringing(calm, robot).calming(robot.joints, 5.0) == {}
     ring = ringing(ringing_xml, robot)
     line = ring.note(ringing_xml, robot.joints, 5.0)
     assert ring.decay_s > 5.0 and str(ringing_xml) in line and "\n" not in line
+    assert line.startswith("warning:")
     # the suggested damping, written into the plant, rings no longer than RING_TARGET_S
     suggested = float(ring.suggested[0])
+    assert ring.calming(robot.joints, 5.0) == {"hinge": suggested}
     assert f"hinge {suggested:.2g} N·m·s/rad" in line
     fixed = _swing(tmp_path, suggested)
     assert ringing(fixed, robot).decay_s == pytest.approx(RING_TARGET_S, rel=1e-6)
-    res = CliRunner().invoke(main, ["mockbus", "--robot", str(calm), "--plant",
-                                    str(ringing_xml), "--port", "pty", "--duration", "0.2"])
-    assert res.exit_code == 0 and line in res.output
+    # by default a run calms the plant and says so; --plant-damping file keeps the warning
+    calmed = ring.note(ringing_xml, robot.joints, 5.0, calmed=True)
+    assert calmed.startswith("note:") and f"hinge {suggested:.2g} N·m·s/rad" in calmed
+    for flags, said in (([], calmed), (["--plant-damping", "file"], line)):
+        res = CliRunner().invoke(main, ["mockbus", "--robot", str(calm), "--plant",
+                                        str(ringing_xml), "--port", "pty", "--duration", "0.2",
+                                        *flags])
+        assert res.exit_code == 0 and said in res.output
+
+
+def test_a_calmed_plant_comes_to_rest_where_its_file_would_ring(tmp_path):
+    """The same load step on the barely damped swing: with the calming damping the arm is at
+    rest within a pose's settle time; as its file says it still swings then."""
+    ringing_xml = _swing(tmp_path, 0.002)
+    arm = ArmModel.load(ringing_xml)
+    damping = ringing(ringing_xml, arm.robot).calming(arm.robot.joints, 5.0)
+    theta = np.array([0.15])
+    lengths = arm.length(theta, arm.tension_distribution(theta, 20.0))
+    rest = []
+    for joint_damping in (damping, None):
+        plant = MujocoPlant(ringing_xml, arm, joint_damping=joint_damping, settle_s=0.0)
+        assert plant.mj.dof_damping[0] == (damping["hinge"] if joint_damping else 0.002)
+        plant.command(("length",) * arm.n_muscles, lengths)
+        for _ in range(50):  # 5 s of arm time, a pose's settle timeout
+            plant.step(0.1)
+        rest.append(plant.settled())
+    assert rest == [True, False]
 
 
 def test_collect_on_a_mujoco_plant_records_the_plant_not_the_description(tmp_path):

@@ -21,8 +21,9 @@ From the move on, the routine watches below the boards' ceiling (``link.LoadGuar
 past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
 the slack removal starts (on the quasi-static arm, whose joints still creep toward the pose
 while its wires load: where it settles), gives that pose up: it is unloaded from where the
-arm is, recorded as skipped with a warning naming what happened, the arm starts over
-relaxed (where that is safe), and the collection goes on. A run that keeps fewer than half
+arm is, recorded as skipped with a warning naming what happened, the arm goes back to the
+last pose recorded (or, before the first or where that fails, starts over relaxed where that
+is safe), and the collection goes on. A run that keeps fewer than half
 of the poses it tried is reported as failed (``Summary.failed``), not complete. A description
 that gets a load or a moment arm wrong fails on a few poses, not the whole collection; the
 boards' ceiling still stops everything that the guard cannot see coming.
@@ -194,6 +195,7 @@ class Collector:
         reading = self._start_over()
         theta = self._theta(reading, np.zeros(self.model.n_joints))
         previous = None  # target the arm is loaded at (None: relaxed)
+        recorded = None  # the last pose recorded: the arm held it, so it can go back there
         holding: Holding | None = None  # what the arm holds between samples (None: read only)
         for i in range(self.summary.start, self.plan.n_samples):
             self.link.begin_sample(i)
@@ -211,10 +213,12 @@ class Collector:
             try:
                 held = self._load(target, reading, theta)
             except Overload as over:
-                reading, holding = self._give_up(i, target, over)
-                previous, theta = None, self._theta(reading, target.theta)
+                reading, holding, previous = self._give_up(i, target, over, recorded)
+                theta = self._theta(reading, target.theta if previous is None
+                                    else previous.theta)
                 continue
             previous, holding = target, (target.hold_mode, target.hold_command)
+            recorded = target
             row = self._row(i, target.theta, held)
             if target.commanded_by:
                 row["commanded_by"] = target.commanded_by
@@ -258,18 +262,27 @@ class Collector:
         reading = self.link.read()
         return self._rest("length", reading.length).reading
 
-    def _give_up(self, i: int, target: Target, over: Overload) -> tuple[Reading, Holding]:
+    def _give_up(self, i: int, target: Target, over: Overload, recorded: Target | None
+                 ) -> tuple[Reading, Holding, Target | None]:
         """Unload the pose the arm ran off or overloaded, record it as skipped and warn; the
-        arm then starts over relaxed (where that is safe), else it holds the low-tension
-        approach of that pose.
+        arm then goes back to the last pose recorded (``recorded``), loaded as it was held
+        there, and the next move starts from it. Where there is none, or the arm cannot be
+        held there again, it starts over relaxed (where that is safe), else it holds the
+        low-tension approach of that pose. Returns the reading, what the arm holds, and the
+        pose it is loaded at (None: unloaded).
 
         A pose is given up because the arm went somewhere else: another rest position of the
         same lengths (MyoSuite's finger with a joint on its limit and the neighbouring joint
         bent instead), or a snagged or overloaded wire. Unloaded in place, the next move would
-        start from there, and on the finger the next pose failed the same way."""
+        start from there, and on the finger the next pose failed the same way. Relaxed, the
+        finger falls onto its stops, and the straight way from there to the next pose passes
+        poses its muscles cannot hold; the last pose recorded is one they held."""
         reading, holding = self._unload(target, over.reading,
                                         self._theta(over.reading, target.theta))
-        if self.relax_safe:
+        back = None if recorded is None else self._go_back(recorded, reading, target.theta)
+        if back is not None:
+            reading, holding = back.reading, (recorded.hold_mode, recorded.hold_command)
+        elif self.relax_safe:
             reading, holding = self._start_over(), ("relax", self.floor)
         s = self.summary
         s.skipped.append(i)
@@ -291,7 +304,18 @@ class Collector:
                    "arm), or the wire snagged")
         self._warn(f"sample {i} given up: {over}; {why}. The pose was unloaded and the "
                    "collection goes on")
-        return reading, holding
+        return reading, holding, (recorded if back is not None else None)
+
+    def _go_back(self, recorded: Target, reading: Reading, guess: np.ndarray
+                 ) -> Settled | None:
+        """The arm loaded at ``recorded`` again, from ``reading`` (None, the pose unloaded
+        again, where that fails too)."""
+        theta = self._theta(reading, guess)
+        try:
+            return self._load(recorded, reading, theta)
+        except Overload as over:
+            self._unload(recorded, over.reading, self._theta(over.reading, recorded.theta))
+            return None
 
     def _unload(self, target: Target, reading: Reading, theta: np.ndarray
                 ) -> tuple[Reading, Holding]:

@@ -41,9 +41,11 @@ class ConnectError(HardwareError):
 def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
               conceal: Sequence[str] = (), seed: int = 0, speed: float = 1.0,
               zero_m=None, plant: Path | None = None,
+              plant_damping: dict[str, float] | None = None,
               hold: bool = False) -> Iterator[DriverLink]:
     """``DriverLink`` to the arm on ``port`` (simulated arm for ``virtual``/``pty``; with
-    ``plant``, an MJCF that MuJoCo integrates as that arm). ``hold``: the motors hold their
+    ``plant``, an MJCF that MuJoCo integrates as that arm, its joints given
+    ``plant_damping``, see ``Ringing.calming``). ``hold``: the motors hold their
     lengths when the boards are configured, instead of relaxing (``relax.relax_fall``).
 
     On the way out (normally, on a stop or on Ctrl-C) the driver relaxes the arm.
@@ -54,7 +56,8 @@ def open_link(port: str, robot: RobotDescription, *, faults: Sequence[str] = (),
             driver, mock = stack.enter_context(open_arm(
                 port, robot, faults=list(faults), effect=effects or None, seed=seed,
                 speed=speed, zero_m=zero_m, hold_at_start=hold,
-                mock_options=None if plant is None else {"plant": plant}))
+                mock_options=None if plant is None else {"plant": plant,
+                                                         "plant_damping": plant_damping}))
         except SafetyStop as stop:
             raise ConnectError(
                 f"no working arm on port {port!r}: {stop.detail}. If the boards are powered and "

@@ -92,7 +92,8 @@ class MockArm:
                  faults=(), seed: int = 0, speed: float = 1.0, tick_s: float = 0.01,
                  status_period_s: float = 0.02, noise: bool = True,
                  encoder_offset_m=None, winding=None,
-                 plant: Path | str | None = None, watchdog_floor_s: float = 0.0) -> None:
+                 plant: Path | str | None = None, plant_damping: dict[str, float] | None = None,
+                 watchdog_floor_s: float = 0.0) -> None:
         from pimbs_arm.model import ArmModel
         from pimbs_calibration.description import load_robot
 
@@ -125,7 +126,8 @@ class MockArm:
                 raise ValueError(f"--conceal {body[0]} changes the description's body, but with "
                                  f"--plant {plant} the plant MJCF is the true arm: make that "
                                  "change in the plant file")
-            self.plant = MujocoPlant(Path(plant), self.model, speed=speed, ambient_c=ambient)
+            self.plant = MujocoPlant(Path(plant), self.model, speed=speed, ambient_c=ambient,
+                                     joint_damping=plant_damping)
         self.host_lag = host_lag()
         self._now = -np.inf
         now = self._clock()

@@ -30,6 +30,7 @@ from __future__ import annotations
 import itertools
 import sys
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -45,7 +46,13 @@ from pimbs_calibration.mjcf import (
     joint_names,
     tendon_names,
 )
-from pimbs_hw.mock.plant import PlantState, power_up, thermal_step
+from pimbs_hw.mock.plant import (
+    HEAT_AT_F_MAX_C,
+    PlantState,
+    heat_per_newton,
+    power_up,
+    thermal_step,
+)
 from pimbs_recording.approach import FrictionPlay
 
 _EXP_CAP = 60.0  # cap K*dn: a tension beyond e^60 N is a broken simulation, not a number
@@ -147,21 +154,35 @@ class Ringing:
     damping: np.ndarray     # (N,) the driven joints' own damping, N·m·s/rad
     suggested: np.ndarray   # (N,) joint damping: no pose rings past RING_TARGET_S
 
-    def note(self, xml: Path, joints: tuple[str, ...], wait_s: float) -> str:
-        """One warning line when the arm rings longer than ``wait_s`` (a pose's settle
-        timeout), else ''."""
+    def calming(self, joints: tuple[str, ...], wait_s: float) -> dict[str, float]:
+        """The joint damping (joint name → N·m·s/rad) that calms an arm ringing longer than
+        ``wait_s`` (a pose's settle timeout): the suggestion where it is above the file's;
+        {} for an arm that settles in time."""
+        if self.decay_s <= wait_s:
+            return {}
+        return {j: float(want) for j, want, now in zip(joints, self.suggested, self.damping,
+                                                      strict=True) if want > now}
+
+    def note(self, xml: Path, joints: tuple[str, ...], wait_s: float,
+             calmed: bool = False) -> str:
+        """One line when the arm rings longer than ``wait_s`` (a pose's settle timeout), else
+        '': a note that the run damps it (``calmed``, see ``calming``), else a warning."""
         if self.decay_s <= wait_s:
             return ""
         took = "never dies down" if not np.isfinite(self.decay_s) else \
             f"takes {self.decay_s:.0f} s to die down to 1/e"
         now = ", ".join(f"{d:g}" for d in self.damping)
-        want = ", ".join(f"{j} {d:.2g}" for j, d in zip(joints, self.suggested, strict=True))
-        return (f"warning: the plant {xml} is barely damped: a motion of its joints {took} "
-                f"(joint damping {now} N·m·s/rad), longer than the {wait_s:g} s a pose may "
-                "take to settle, so held poses will ring and a wire may reach its tension "
-                "ceiling. A real arm's motors, gears and wires damp it (MuJoCo muscle "
-                f"actuators would too, but the boards drive the tendons): give the plant's "
-                f"joints damping of about {want} N·m·s/rad, or its tendons damping")
+        want = ", ".join(f"{j} {d:.2g}" for j, d in self.calming(joints, wait_s).items())
+        rings = (f"the plant {xml} is barely damped: a motion of its joints {took} (joint "
+                 f"damping {now} N·m·s/rad), longer than the {wait_s:g} s a pose may take to "
+                 "settle. A real arm's motors, gears and wires damp it (MuJoCo muscle "
+                 "actuators would too, but the boards drive the tendons)")
+        if calmed:
+            return (f"note: {rings}: this run gives the plant's joints damping of {want} "
+                    "N·m·s/rad (--plant-damping file runs the file's own)")
+        return (f"warning: {rings}, so held poses will ring and a wire may reach its tension "
+                f"ceiling: give the plant's joints damping of about {want} N·m·s/rad, or its "
+                "tendons damping")
 
 
 @dataclass(frozen=True)
@@ -301,15 +322,18 @@ def timestep(xml: Path, robot, mj: mujoco.MjModel | None = None) -> Timestep:
                     muscle=robot.muscles[worst].name, f_max=float(robot.muscles[worst].f_max))
 
 
-def plant_notes(xml: Path, robot, wait_s: float) -> tuple[str, str]:
-    """The lines to show before the plant arm moves, each '' when there is nothing to say:
-    how it rings (``Ringing.note``; a collection's stop names the swing when it was said) and
-    the timestep it is integrated with (``Timestep.note``); a plant that does not fit the
-    description is refused (``PlantMismatch``)."""
+def plant_notes(xml: Path, robot, wait_s: float, calm: bool = True
+                ) -> tuple[str, str, dict[str, float]]:
+    """Before the plant arm moves: how it rings (``Ringing.note``; '' when it settles within
+    ``wait_s``) and the timestep it is integrated with (``Timestep.note``; '' when its file's
+    will do), and the joint damping it runs with (``calm``: ``Ringing.calming``, else {}). A
+    plant that does not fit the description is refused (``PlantMismatch``)."""
     xml = Path(xml)
     mj = _compile(xml)
-    return (ringing(xml, robot).note(xml, robot.joints, wait_s),
-            timestep(xml, robot, mj).note(xml))
+    rings = ringing(xml, robot)
+    damping = rings.calming(robot.joints, wait_s) if calm else {}
+    return (rings.note(xml, robot.joints, wait_s, calmed=calm),
+            timestep(xml, robot, mj).note(xml), damping)
 
 
 def _decay_s(damping: np.ndarray, inertia: np.ndarray) -> float:
@@ -323,8 +347,9 @@ class MujocoPlant:
     """True arm state simulated by MuJoCo; the same interface as ``plant.Plant``."""
 
     def __init__(self, xml: Path, model, *, speed: float = 1.0, motor_tau_s: float = 0.03,
-                 ambient_c: np.ndarray | float = 25.0, heat_c_per_n: float = 0.05,
-                 tau_thermal_s: float = 30.0, settle_s: float = 5.0) -> None:
+                 ambient_c: np.ndarray | float = 25.0, heat_at_f_max_c: float = HEAT_AT_F_MAX_C,
+                 tau_thermal_s: float = 30.0, settle_s: float = 5.0,
+                 joint_damping: Mapping[str, float] | None = None) -> None:
         self.model = model  # the description's ArmModel: muscles, joints, elastic law K
         self.xml = Path(xml)
         self.mj = _compile(self.xml)
@@ -333,6 +358,8 @@ class MujocoPlant:
         # A blown-up step is detected and reported (``failure``), not silently reset to qpos0.
         self.mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION
                                         | mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        for name, damping in (joint_damping or {}).items():  # ``Ringing.calming``
+            self.mj.dof_damping[self._dof[model.robot.joints.index(name)]] = damping
         self.step_check = timestep(self.xml, model.robot, self.mj)
         self.mj.opt.timestep = self.step_check.step_s
         self.failure: str | None = None  # why the simulation stopped (it then stands still)
@@ -342,7 +369,7 @@ class MujocoPlant:
         m = model.n_muscles
         self.K = np.asarray(model.K, dtype=np.float64)
         self.ambient_c = np.broadcast_to(np.asarray(ambient_c, float), (m,)).copy()
-        self.heat_c_per_n = heat_c_per_n
+        self.heat_c_per_n = heat_per_newton(model, heat_at_f_max_c)
         self.heat_rate_c_per_s = np.zeros(m)  # injected heating (overheat fault)
         self._J = np.zeros((self.mj.ntendon, self.mj.nv))
         self._home = False

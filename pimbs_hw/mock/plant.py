@@ -19,6 +19,18 @@ from pimbs_recording.approach import FrictionPlay
 log = logging.getLogger(__name__)
 
 
+# °C above ambient a motor settles at while its wire holds f_max: each board's motor is sized
+# for its muscle, so the heating per newton follows 1/f_max (0.05 °C/N on a 600 N muscle). A
+# fixed heating per newton would cook a 2500 N muscle's motor at 40 % of its f_max and
+# never warm a 10 N one.
+HEAT_AT_F_MAX_C = 30.0
+
+
+def heat_per_newton(model, at_f_max_c: float = HEAT_AT_F_MAX_C) -> np.ndarray:
+    """(M,) °C per N of held tension at steady state, each muscle's motor sized for its f_max."""
+    return at_f_max_c / np.asarray(model.f_max, dtype=float)
+
+
 @dataclass(frozen=True)
 class PlantState:
     theta: np.ndarray  # (N,) rad, true pose
@@ -29,7 +41,7 @@ class PlantState:
 
 
 def thermal_step(temperature: np.ndarray, tension: np.ndarray, ambient_c: np.ndarray,
-                 heat_c_per_n: float, heat_rate_c_per_s: np.ndarray, dt_arm: float,
+                 heat_c_per_n: np.ndarray | float, heat_rate_c_per_s: np.ndarray, dt_arm: float,
                  dt: float, tau_thermal_s: float) -> np.ndarray:
     """Motor temperatures after ``dt_arm`` s of arm time: first-order toward ambient plus
     heating with load; injected heating (a fault) runs on wall time ``dt``."""
@@ -139,13 +151,13 @@ class Plant:
     """True arm state; ``command`` sets motor targets, ``step`` advances time."""
 
     def __init__(self, model, *, speed: float = 1.0, tau_s: float = 0.075,
-                 ambient_c: np.ndarray | float = 25.0, heat_c_per_n: float = 0.05,
+                 ambient_c: np.ndarray | float = 25.0, heat_at_f_max_c: float = HEAT_AT_F_MAX_C,
                  tau_thermal_s: float = 30.0) -> None:
         self.model = model
         self.speed, self.tau_s, self.tau_thermal_s = speed, tau_s, tau_thermal_s
         m = model.n_muscles
         self.ambient_c = np.broadcast_to(np.asarray(ambient_c, float), (m,)).copy()
-        self.heat_c_per_n = heat_c_per_n
+        self.heat_c_per_n = heat_per_newton(model, heat_at_f_max_c)
         self.heat_rate_c_per_s = np.zeros(m)  # injected heating (overheat fault)
         # power-up: motors hold their length, the arm hangs on its elastic elements
         theta, values = power_up(model)
