@@ -18,10 +18,12 @@ user with the recording, its clean reference and the robot description would
   which excites little and so leaves effects confounded that the population's 230 wide ATL
   rows separate; this is where the confounded answers and their separating poses are
   measured (the population's own recordings were never called "either");
-* for every recording the diagnosis calls confounded ("either A or B"), the **separating
-  poses** it proposes (``--poses-out``), collected on the same arm with the same concealed
-  effects and sensors (PIMBS's simulator, or MuJoCo as the plant with the same plant file)
-  into ``OUT/settle``, and both recordings diagnosed together.
+* for every recording the diagnosis calls confounded ("either A or B", or "unexplained"
+  with the loadcells' hysteresis among the candidates: a name that rests on guessed
+  branches), the **separating poses** it proposes (``--poses-out``), collected on the
+  same arm with the same concealed effects and sensors (PIMBS's simulator, or MuJoCo as
+  the plant with the same plant file) into ``OUT/settle``, and both recordings diagnosed
+  together.
 
 Scoring (decided before any run, see docs/diagnosis-notebook.md "On a population of drawn
 arms"):
@@ -376,7 +378,8 @@ def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: 
         "targets": want, "nuisances": nuisances(truth), **said,
         "outcome": outcome(said, want), "truth_in_either": truth_in_either(said, want),
         "cpu_s": round(time.process_time() - c0, 2)}
-    if settle and said["either"]:
+    if settle and (said["either"] or any(u.get("separating_poses")
+                                         for u in result["unexplained"])):
         rec["settle"] = settle_one(line, pop, out, kind, result, real, reference, want, cond,
                                    plant)
     rec["cpu_s_total"] = round(time.process_time() - t_cpu, 2)
@@ -417,10 +420,10 @@ def settle_one(line: dict[str, Any], pop: Path, out: Path, kind: str, result: di
     said = answer(both)
     return {"poses": count, "expected_lr": [a["separating_poses"]["expected_likelihood_ratio"]
                                             for a in result["ambiguous"]
+                                            + result["unexplained"]
                                             if a.get("separating_poses")],
             **said, "outcome": outcome(said, want),
-            "resolved": outcome(said, want) in (("exact",) if want
-                                                else ("nothing", "unexplained")),
+            "resolved": outcome(said, want) == ("exact" if want else "nothing"),
             "cpu_s_record": round(c1 - c0, 2), "cpu_s": round(time.process_time() - c1, 2)}
 
 

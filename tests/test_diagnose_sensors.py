@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pimbs_arm.model import ArmModel
-from pimbs_learn.diagnosis.inputs import collection_order
+from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, collection_order
 from pimbs_learn.diagnosis.run import diagnose
 from pimbs_recording.format import write_recording
 from pimbs_sim.effects import parse_effect
@@ -112,6 +112,35 @@ def test_a_name_that_rests_on_guessed_loadcell_branches_is_unexplained(tmp_path,
     (entry,) = [u for u in result["unexplained"] if "loadcell_hysteresis" in u["candidates"]]
     assert entry["candidates"][0] == "elastic_stiffness"
     assert "guessed" in entry["why"] and entry["where"]
+    # the poses that would tell: collected in their order on the same arm (same loadcells),
+    # every reading's branch is told, and both sessions together name nothing
+    from pimbs_arm.poses_file import read_pose_plan
+    from pimbs_learn.diagnosis.design import design_csv
+
+    text, count = design_csv(result)
+    proposed = entry["separating_poses"]
+    assert count == len(proposed["poses"]) == 30
+    (tmp_path / "tell.csv").write_text(text)
+    plan = read_pose_plan(tmp_path / "tell.csv", arm)
+    paths = []
+    for name, sensors, noise_seed in (("sim2", None, 10001), ("real2", SensorModel(
+            hysteresis_n=1.16), 1)):
+        data, meta = simulate(arm, count, "atl", seed=1, poses=plan, noise_seed=noise_seed,
+                              sensors=sensors)
+        paths.append(tmp_path / f"{name}.parquet")
+        write_recording(paths[-1], data, meta)
+        # every reading moves by more than the hysteresis (1.16 N) can hide: 2h + dead band
+        steps = np.abs(np.diff(data["tension"], axis=0)).min(axis=1)
+        assert (steps > 2 * 1.16 + BRANCH_DEADBAND).all()
+    both, _ = diagnose([real, paths[1]], [ref, paths[0]], robot=ROBOT)
+    assert both["effects"] == [] and both["ambiguous"] == [], both["effects"]
+    assert not [u for u in both["unexplained"] if "loadcell_hysteresis" in u["candidates"]]
+    assert both["model"]["sensors"]["hysteresis_N"] == pytest.approx(1.16, abs=0.3)
+    # where more rows alone do not: a second session like the first still rests on guesses
+    (tmp_path / "more").mkdir()
+    real3, ref3 = _narrow_pair(tmp_path / "more", arm, seed=1)
+    more, _ = diagnose([real, real3], [ref, ref3], robot=ROBOT)
+    assert [u for u in more["unexplained"] if "loadcell_hysteresis" in u.get("candidates", [])]
     # the trap is real: with every guessed branch trusted, the clean arm gets a name
     monkeypatch.setattr(confound, "branch_bound", lambda *args, **kwargs: False)
     trusting, _ = diagnose(real, ref, robot=ROBOT)

@@ -36,8 +36,8 @@ import numpy as np
 from pimbs_arm.model import ArmModel
 from pimbs_arm.poses import PosePlan, atl_floor_range, feasible, plan_poses
 from pimbs_arm.poses_file import pose_plan_csv
-from pimbs_learn.diagnosis.confound import Verdict
-from pimbs_learn.diagnosis.inputs import stretch_weights
+from pimbs_learn.diagnosis.confound import Verdict, hysteresis
+from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, stretch_weights
 from pimbs_learn.diagnosis.model import (
     SENSOR,
     Fit,
@@ -70,6 +70,33 @@ def candidate_pool(arm: ArmModel, n: int = POOL, seed: int = POOL_SEED) -> PoseP
     # as a poses file gives them: the floors the collection holds (≥ each f_floor)
     floors = np.maximum(np.array(floors), f_floor)
     return PosePlan(poses=np.array(poses), floors=floors, drawn_floors=floors, replaced=())
+
+
+def pool_within(arm: ArmModel, theta: np.ndarray, n: int = POOL, seed: int = POOL_SEED
+                ) -> PosePlan:
+    """Feasible poses drawn in the box of joint angles ``theta`` (rows) covers, each with
+    every floor low, at half the ATL-Map's top and at its top: the same body the recording
+    saw, at tensions that step far from one another. Empty where none can be held."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.min(theta, axis=0), np.max(theta, axis=0)
+    f_floor = np.array([m.f_floor for m in arm.robot.muscles])
+    top = atl_floor_range(arm)[1]
+    levels = [np.zeros(arm.n_muscles), np.full(arm.n_muscles, top / 2),
+              np.full(arm.n_muscles, top)]
+    poses, floors = [], []
+    for _ in range(20 * n):
+        if len(poses) >= 3 * n:
+            break
+        pose = rng.uniform(lo, hi)
+        for f in levels:
+            f = np.maximum(f, f_floor)
+            if feasible(arm, pose, f):
+                poses.append(pose)
+                floors.append(f)
+    shape = (0, arm.n_muscles)
+    floors_arr = np.array(floors) if floors else np.zeros(shape)
+    return PosePlan(poses=np.array(poses) if poses else np.zeros((0, arm.n_joints)),
+                    floors=floors_arr, drawn_floors=floors_arr, replaced=())
 
 
 def _carried_link(arm: ArmModel, k: int) -> str | None:
@@ -217,10 +244,68 @@ def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Ve
             "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
 
 
+def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
+                         k: int, noise: dict | None = None) -> dict:
+    """The ``k`` poses (and floors) that settle a name resting on guessed loadcell branches
+    (``confound.branch_bound``).
+
+    Its rival is the same model without it, the loadcells' hysteresis left to explain the
+    mismatch: the poses are picked as ``separating_poses`` picks them (T-optimal, either
+    way true), each next one among the candidates into which every muscle's tension changes
+    by more than the hysteresis can hide (2ĥ plus the dead band, plus three noise levels,
+    in a reading that itself jumps 2ĥ back where its branch flips), so that in the new
+    session each row's branch is told, not guessed. The candidates lie
+    in the joint box the recording covers (``pool_within``): what is in question is the
+    loadcells, not the body, and poses beyond the recorded ones would ask the learned body
+    schema to reach where it was never fitted. Their floors (all low, at half the ATL top,
+    at the top) make such steps available from almost any pose; where none is, the pose
+    whose smallest change is largest comes next."""
+    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    pool = pool_within(arm, data.theta)
+    if len(pool.poses) < k:  # the recording's box holds too few: the whole ranges
+        pool = candidate_pool(arm)
+    named, other = verdict.fit, verdict.without
+    pred_a, pred_b = (predict(arm, pool, m, physics, noise) for m in (named, other))
+    described = replace(physics, tied=None, _cache={})
+    clean = predict(arm, pool, None, physics, noise)
+    schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
+    tests = [_Test(physics, described, schema, data, other, pred_b, pred_a),
+             _Test(physics, described, schema, data, named, pred_a, pred_b)]
+    # a reading whose branch flips moves 2ĥ less than its tension: that change, past 2ĥ
+    need = 4.0 * hysteresis(named) + BRANCH_DEADBAND + 3.0 * noise["tension_N"]
+    tension = clean.tension
+    chosen: list[int] = []
+    score = 0.0
+    for _ in range(min(k, len(pool.poses))):
+        worst = np.min([t.gain(chosen) for t in tests], axis=0)
+        worst[chosen] = -np.inf
+        if chosen:
+            step = np.abs(tension - tension[chosen[-1]]).min(axis=1)
+            told = step >= need
+            told[chosen] = False
+            if told.any():
+                worst[~told] = -np.inf
+            else:
+                worst = np.where(np.isfinite(worst), step, -np.inf)
+        best = int(np.argmax(worst))
+        chosen.append(best)
+        score = float(np.min([t.gain(chosen[:-1])[best] for t in tests]))
+    floors = pool.floors[chosen]
+    return {"between": [verdict.named.effect, "loadcell_hysteresis"],
+            "poses": pool.poses[chosen].tolist(), "floors_N": floors.tolist(),
+            "expected_likelihood_ratio": score, "branch_step_N": need,
+            "meaning": "poses (rad, joint order) and tension floors (N, muscle order), in the "
+                       "order to collect them: every muscle's tension changes into each by "
+                       "more than the loadcells' hysteresis can hide, so each reading's "
+                       "branch is told; picked to tell the effect from the hysteresis alone",
+            "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
+
+
 def design_csv(result: dict) -> tuple[str, int]:
-    """One poses file for every ambiguity of a diagnosis (one session settles them all),
-    and how many poses it holds."""
-    rows = [a["separating_poses"]["csv"].splitlines() for a in result.get("ambiguous", [])
+    """One poses file for every ambiguity of a diagnosis and every name that rests on
+    guessed loadcell branches (one session settles them all), and how many poses it holds."""
+    entries = [*result.get("ambiguous", []), *result.get("unexplained", [])]
+    rows = [a["separating_poses"]["csv"].splitlines() for a in entries
             if a.get("separating_poses")]
     if not rows:
         return "", 0

@@ -262,6 +262,12 @@ def ambiguity_text(result: dict) -> list[str]:
                              f"{path} {lr:+.0f}" for path, lr in
                              d["likelihood_ratio_of_first_over_rival"].items()))
         lines += [f"  - {w}" for w in u["where"]]
+        poses = u.get("separating_poses")
+        if poses:
+            lines.append(f"  {len(poses['poses'])} poses, each loading or unloading every "
+                         f"wire by more than {poses['branch_step_N']:.1f} N, would tell them "
+                         "apart: collect them in their order with `pimbs collect --poses-file "
+                         "FILE` (written by --poses-out) and diagnose both recordings together")
         lines.append("")
     return lines
 

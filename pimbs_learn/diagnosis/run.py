@@ -115,6 +115,18 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
             except InfeasiblePoseError as exc:  # an explanation the arm could not hold
                 entry["separating_poses"] = None
                 entry["separating_poses_note"] = f"no poses proposed: {exc}"
+    guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
+    if arm is not None and design_poses > 0:
+        from pimbs_arm.model import InfeasiblePoseError
+        from pimbs_learn.diagnosis.design import branch_telling_poses
+
+        for v, entry in zip(guessed, guessed_entries, strict=True):
+            try:
+                entry["separating_poses"] = branch_telling_poses(
+                    arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
+            except InfeasiblePoseError as exc:  # an explanation the arm could not hold
+                entry["separating_poses"] = None
+                entry["separating_poses_note"] = f"no poses proposed: {exc}"
     residual = leftover(physics, final, data, paired.joints, paired.muscles,
                         paired.reference)
     sources = [str(r.path) for r in reals]
@@ -128,8 +140,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, residual, location,
                                    [disputed_entry(v, sources) for v in disputed]
-                                   + [branch_entry(v, paired.muscles, final)
-                                      for v in guessed]),
+                                   + guessed_entries),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
