@@ -175,6 +175,30 @@ def test_the_guard_watches_only_while_loading():
             guard.read()
 
 
+def test_a_narrow_joint_is_given_up_before_it_runs_onto_its_stop():
+    """0.2 rad off the pose is a fifth of a 1 rad range, but most of a 0.17 rad one: each
+    joint may run a fifth of its range off (0.1 rad at least, 0.2 at most)."""
+    from types import SimpleNamespace
+
+    from pimbs_hw.collection.plan import pose_excursion
+
+    arm = SimpleNamespace(joint_range=np.array([[-1.0, 1.0], [-0.35, 0.35], [-0.087, 0.087]]))
+    np.testing.assert_allclose(pose_excursion(arm), [0.2, 0.14, 0.1])
+    theta = np.array([0.15, 0.0, 0.0])
+
+    class Fixed:
+        def read(self) -> Reading:
+            return Reading(np.zeros(2), np.array([10.0, 20.0]), np.zeros(2), theta)
+
+    guard = LoadGuard(Fixed(), np.array([570.0, 570.0]), pose_excursion(arm), ("a", "b"))
+    with guard.watching():
+        guard.pose = np.zeros(3)
+        guard.read()  # the wide joint 0.15 rad off: within its 0.2
+        theta = np.array([0.0, 0.15, 0.0])
+        with pytest.raises(Overload, match=r"ran 0.15 rad off the pose \(limit 0.14 rad\)"):
+            guard.read()
+
+
 def test_releasing_a_pose_given_up_far_from_it_is_a_short_ramp(model):
     """A pose given up mid-swing is released from lengths the model reads as a stretch whose
     exponential tension no wire carries (a MuJoCo torso on itself: 1e15 steps, and numpy

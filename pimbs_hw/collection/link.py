@@ -139,7 +139,7 @@ class Overload(Exception):
 class LoadGuard:
     """An ``ArmLink`` that raises ``Overload`` while armed (``watching``): a reading above
     ``limit`` (N per muscle), or, once a pose is given, joint encoders further than
-    ``excursion`` (rad) from it.
+    ``excursion`` (rad, per joint or one for all) from it.
 
     The boards' own ceiling stops the whole collection and relaxes the arm. A description
     that underestimates a load (a heavier link, a bigger pulley) reaches it on the poses where
@@ -149,9 +149,10 @@ class LoadGuard:
     one pose and go on.
     """
 
-    def __init__(self, link: Any, limit: np.ndarray, excursion: float,
+    def __init__(self, link: Any, limit: np.ndarray, excursion: np.ndarray | float,
                  muscles: tuple[str, ...]) -> None:
-        self.link, self.limit, self.excursion = link, np.asarray(limit, float), excursion
+        self.link, self.limit = link, np.asarray(limit, float)
+        self.excursion = np.asarray(excursion, float)
         self.muscles, self.armed = muscles, False
         self.pose: np.ndarray | None = None
 
@@ -189,6 +190,8 @@ class LoadGuard:
         if reading.theta is None:
             return
         off = np.abs(reading.theta - pose)
-        if off.max() > self.excursion:
-            raise Overload(f"the joints ran {off.max():.2f} rad off the pose (limit "
-                           f"{self.excursion:g} rad)", reading)
+        limit = np.broadcast_to(self.excursion, off.shape)
+        if (off > limit).any():
+            j = int(np.argmax(off / limit))
+            raise Overload(f"the joints ran {off[j]:.2f} rad off the pose (limit "
+                           f"{limit[j]:.2g} rad)", reading)

@@ -42,6 +42,20 @@ from pimbs_recording.approach import BAND_M
 APPROACH_TRAVEL = 2 * BAND_M + 4e-4  # m, final motion into each pose: > a full friction reversal
 OVERSHOOT_CEILING = 0.75  # no wire is overshot beyond this fraction of f_max
 MAX_POSE_EXCURSION = 0.2  # rad the held overshoot may move a joint
+EXCURSION_SHARE = 0.2     # of a joint's range: the most it may run off a pose being held
+MIN_EXCURSION = 0.1       # rad: ... but never less (loading swings a joint by a few 0.01 rad)
+
+
+def pose_excursion(model: ArmModel) -> np.ndarray:
+    """(N,) rad each joint may run off the pose it is being loaded at before the pose is
+    given up: ``MAX_POSE_EXCURSION``, or a fifth of a narrow joint's range (at least
+    ``MIN_EXCURSION``). A joint whose balance is off runs toward a stop; with MyoSuite's
+    torso (lumbar bending over 0.7 rad, rotation over 0.17 rad) 0.2 rad let it reach its
+    stop and swing a held wire into the boards' ceiling before the guard saw anything;
+    loading its poses swings the rotation by up to 0.07 rad on the way to a pose it holds."""
+    span = np.asarray(model.joint_range, float)[:, 1] - np.asarray(model.joint_range,
+                                                                   float)[:, 0]
+    return np.clip(EXCURSION_SHARE * span, MIN_EXCURSION, MAX_POSE_EXCURSION)
 GEOMETRIC_MIN = 3e-4      # m: below this the geometry does not pick a free muscle's direction
 
 

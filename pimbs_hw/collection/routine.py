@@ -18,7 +18,7 @@ from the relaxed arm at rest (or, where relaxing would let it fall out of its ro
 itself when it rests (``ArmLink.at_rest``); every other arm is judged from its readings.
 
 From the move on, the routine watches below the boards' ceiling (``link.LoadGuard``): a wire
-past ``LOAD_LIMIT``·f_max, or joints further than ``MAX_POSE_EXCURSION`` from the pose once
+past ``LOAD_LIMIT``·f_max, or joints further than ``pose_excursion`` from the pose once
 the slack removal starts (on the quasi-static arm, whose joints still creep toward the pose
 while its wires load: where it settles), gives that pose up: it is unloaded from where the
 arm is, recorded as skipped with a warning naming what happened, the arm goes back to the
@@ -54,7 +54,7 @@ from pimbs_hw.collection.move import (
     run_ramp,
     take_up_slack,
 )
-from pimbs_hw.collection.plan import MAX_POSE_EXCURSION, CollectionPlan, Target
+from pimbs_hw.collection.plan import CollectionPlan, Target, pose_excursion
 from pimbs_hw.collection.settle import SettleConfig, Settled, hold_until_settled
 from pimbs_hw.collection.temperature import filled
 from pimbs_recording.format import RecordingWriter
@@ -173,7 +173,7 @@ class Collector:
                  relax_safe: bool = True) -> None:
         f_max = np.array([m.f_max for m in model.robot.muscles])
         self.link = LoadGuard(ApproachLink(link, model.n_muscles), LOAD_LIMIT * f_max,
-                              MAX_POSE_EXCURSION, model.muscles)
+                              pose_excursion(model), model.muscles)
         self.model, self.plan, self.writer = model, plan, writer
         self.settle, self.reporter, self.now = settle, reporter or NullReporter(), now
         self.move = move or MoveConfig()
