@@ -152,15 +152,18 @@ def command(port: str, samples: int, robot: str, out: Path | None, seed: int, ma
     settle = SettleConfig(tension_tol=settle_tol, length_tol=settle_length_tol,
                           window=settle_window, timeout=settle_timeout, fixed_wait=fixed_wait)
     moves = MoveConfig(speed=mock_speed if simulated else 1.0)
-    plant_meta = {} if plant is None else {"plant": str(plant.resolve())}
-    meta = collection_meta(model, {**plan.meta(), **schema_meta, **plant_meta}, port=port,
-                           simulated=simulated, settle=settle.meta(), move=moves.meta())
     if plan.replaced:
         click.echo(replaced_note(plan.replaced, samples, seed), err=True)
     if plan.scaled:
         click.echo(scaled_note(plan.scaled, samples), err=True)
     rings, damping = (("", {}) if plant is None else
                       _plant_notes(plant, model, settle.timeout, plant_damping == "calm"))
+    # the simulated arm the rows came from: its file, and the joint damping it was given
+    plant_meta = {} if plant is None else {"plant": str(plant.resolve()),
+                                           **({"plant_joint_damping": damping} if damping
+                                              else {})}
+    meta = collection_meta(model, {**plan.meta(), **schema_meta, **plant_meta}, port=port,
+                           simulated=simulated, settle=settle.meta(), move=moves.meta())
     hold = _relax_note(model, simulated)
     zero_m, note = _zeros(model.robot, calibration, simulated)
     # one writer per recording for the whole run: a second collect (or --resume) on the same

@@ -234,6 +234,24 @@ def test_a_calmed_plant_comes_to_rest_where_its_file_would_ring(tmp_path):
     assert rest == [True, False]
 
 
+def test_collect_on_a_barely_damped_plant_calms_it_and_records_how(tmp_path):
+    """The whole command on the ringing swing: every pose kept, and the recording says which
+    joint damping the simulated arm ran with."""
+    from pimbs_recording.format import read_recording
+
+    calm, ringing_xml = _swing(tmp_path, 0.2), _swing(tmp_path, 0.002)
+    out = tmp_path / "calmed.parquet"
+    res = CliRunner().invoke(main, ["collect", "--port", "virtual", "--robot", str(calm),
+                                    "--plant", str(ringing_xml), "--samples", "2",
+                                    "--mock-speed", "5", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "this run gives the plant's joints damping of hinge" in res.output
+    rec = read_recording(out)
+    assert rec.n_rows == 2
+    want = ringing(ringing_xml, ArmModel.load(calm).robot).suggested[0]
+    assert rec.meta["plant_joint_damping"] == {"hinge": pytest.approx(want)}
+
+
 def test_collect_on_a_mujoco_plant_records_the_plant_not_the_description(tmp_path):
     """A whole collection through the mock bus on MuJoCo's dynamics: every sample settles
     (slack removal waits for the swinging arm to come to rest), and the lengths recorded are
