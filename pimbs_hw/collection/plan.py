@@ -53,9 +53,8 @@ def pose_excursion(model: ArmModel) -> np.ndarray:
     torso (lumbar bending over 0.7 rad, rotation over 0.17 rad) 0.2 rad let it reach its
     stop and swing a held wire into the boards' ceiling before the guard saw anything;
     loading its poses swings the rotation by up to 0.07 rad on the way to a pose it holds."""
-    span = np.asarray(model.joint_range, float)[:, 1] - np.asarray(model.joint_range,
-                                                                   float)[:, 0]
-    return np.clip(EXCURSION_SHARE * span, MIN_EXCURSION, MAX_POSE_EXCURSION)
+    lo, hi = np.asarray(model.joint_range, float).T
+    return np.clip(EXCURSION_SHARE * (hi - lo), MIN_EXCURSION, MAX_POSE_EXCURSION)
 GEOMETRIC_MIN = 3e-4      # m: below this the geometry does not pick a free muscle's direction
 
 

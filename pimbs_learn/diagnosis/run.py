@@ -37,6 +37,19 @@ FIT_METRIC = ("mean squared held-out residual of lengths and torques, each chann
               "divided by its noise level under the model without effects (5-fold CV)")
 
 
+def _propose(entry: dict, design, *args) -> None:
+    """``entry["separating_poses"]`` = ``design(*args)`` (``design.separating_poses`` or
+    ``design.branch_telling_poses``), or None with the reason where the arm could not hold
+    an explanation's poses."""
+    from pimbs_arm.model import InfeasiblePoseError
+
+    try:
+        entry["separating_poses"] = design(*args)
+    except InfeasiblePoseError as exc:  # an explanation the arm could not hold
+        entry["separating_poses"] = None
+        entry["separating_poses_note"] = f"no poses proposed: {exc}"
+
+
 def diagnose(real: Source | list[Source], reference: Source | list[Source] | None = None,
              robot: str | Path | None = None, effects: tuple[str, ...] = EFFECTS,
              progress=None, design_poses: int = DESIGN_POSES) -> tuple[dict, dict]:
@@ -104,29 +117,15 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                for cand in sure]
     ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
                  for v in unsure]
-    if arm is not None and design_poses > 0 and unsure:
-        from pimbs_arm.model import InfeasiblePoseError
-        from pimbs_learn.diagnosis.design import separating_poses
-
-        for v, entry in zip(unsure, ambiguous, strict=True):
-            try:
-                entry["separating_poses"] = separating_poses(
-                    arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
-            except InfeasiblePoseError as exc:  # an explanation the arm could not hold
-                entry["separating_poses"] = None
-                entry["separating_poses_note"] = f"no poses proposed: {exc}"
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
     if arm is not None and design_poses > 0:
-        from pimbs_arm.model import InfeasiblePoseError
-        from pimbs_learn.diagnosis.design import branch_telling_poses
+        from pimbs_learn.diagnosis.design import branch_telling_poses, separating_poses
 
-        for v, entry in zip(guessed, guessed_entries, strict=True):
-            try:
-                entry["separating_poses"] = branch_telling_poses(
-                    arm, physics, data, v, design_poses, model_info.get("noise_estimate"))
-            except InfeasiblePoseError as exc:  # an explanation the arm could not hold
-                entry["separating_poses"] = None
-                entry["separating_poses_note"] = f"no poses proposed: {exc}"
+        noise = model_info.get("noise_estimate")
+        for design, group, out in ((separating_poses, unsure, ambiguous),
+                                   (branch_telling_poses, guessed, guessed_entries)):
+            for v, entry in zip(group, out, strict=True):
+                _propose(entry, design, arm, physics, data, v, design_poses, noise)
     residual = leftover(physics, final, data, paired.joints, paired.muscles,
                         paired.reference)
     sources = [str(r.path) for r in reals]
