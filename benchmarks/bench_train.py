@@ -6,8 +6,10 @@ per epoch and end to end, beside the optimizer's floor.
 
 What is measured (one torch thread everywhere; ``OMP_NUM_THREADS=1``):
 
-- **floor**: one fused Adam step over the paper's network (ATL-Map, inputs N+M → 1000 →
-  1000 → M), alone: what every epoch pays whatever its gradient costs.
+- **floor**: one fused Adam step over the network's tensors (ATL-Map, inputs N+M → H → H →
+  M), alone, at the paper's width (1000) and at `pimbs train`'s: what every epoch pays
+  whatever its gradient costs. Basic and the default run at `pimbs train`'s width, the
+  paper's method (reference and fast) at the paper's.
 - **per epoch**, in this process, ms per epoch (median of 50-epoch chunks) at each N of
   ``--n``: *Basic* (``pimbs train --loss basic``), *default* (``pimbs train --alpha 1e-5``:
   Basic+Const+PINN, series-elastic ATL-Map on the description's model) and, at N = 30, the
@@ -60,20 +62,22 @@ from pimbs_learn.reference import train_reference  # noqa: E402
 from pimbs_learn.run import Run, TrainOptions  # noqa: E402
 from pimbs_learn.session import prepare_run  # noqa: E402
 from pimbs_learn.train import train_runs  # noqa: E402
+from pimbs_learn.widths import DEFAULT_HIDDEN, HIDDEN  # noqa: E402
 
 CHUNK = 50  # epochs per timed chunk
 ALPHA = 1e-5
-# name -> (`pimbs train` options, loss, structure, prior, schedule, trainer)
-CONFIGS: dict[str, tuple[list[str], str, str, bool, str, str]] = {
-    "reference": (["--reference", "--structure", "mlp", "--no-prior", "--alpha", str(ALPHA),
-                   "--lr-schedule", "constant"], "basic+const+pinn", "mlp", False,
-                  "constant", "reference"),
-    "paper, fast": (["--structure", "mlp", "--no-prior", "--alpha", str(ALPHA),
-                     "--lr-schedule", "constant"], "basic+const+pinn", "mlp", False,
-                    "constant", "fast"),
-    "Basic": (["--loss", "basic"], "basic", "series-elastic", True, "exp", "fast"),
+# name -> (`pimbs train` options, loss, structure, prior, schedule, trainer, width): the
+# paper's method at the paper's width, Basic and the default at `pimbs train`'s
+_PAPER = ["--structure", "mlp", "--no-prior", "--alpha", str(ALPHA), "--lr-schedule",
+          "constant", "--hidden", str(HIDDEN)]
+CONFIGS: dict[str, tuple[list[str], str, str, bool, str, str, int]] = {
+    "reference": (["--reference", *_PAPER], "basic+const+pinn", "mlp", False, "constant",
+                  "reference", HIDDEN),
+    "paper, fast": (_PAPER, "basic+const+pinn", "mlp", False, "constant", "fast", HIDDEN),
+    "Basic": (["--loss", "basic"], "basic", "series-elastic", True, "exp", "fast",
+              DEFAULT_HIDDEN),
     "default": (["--alpha", str(ALPHA)], "basic+const+pinn", "series-elastic", True, "exp",
-                "fast"),
+                "fast", DEFAULT_HIDDEN),
 }
 
 
@@ -103,9 +107,9 @@ def chunk_ms(work: Callable[[Callable[[int], None]], None]) -> list[float]:
     return ms
 
 
-def floor_ms(n_in: int, m: int, epochs: int) -> list[float]:
-    """One fused Adam step over the paper's network's tensors, alone, per 'epoch'."""
-    params = [t.unsqueeze(0) for t in init_params(n_in, m, seed=0).values()]
+def floor_ms(n_in: int, m: int, epochs: int, hidden: int) -> list[float]:
+    """One fused Adam step over the tensors of a network this wide, alone, per 'epoch'."""
+    params = [t.unsqueeze(0) for t in init_params(n_in, m, seed=0, hidden=hidden).values()]
     grads = [torch.full_like(t, 1e-3) for t in params]
     adam = FusedAdam(params, 1e-3)
 
@@ -119,7 +123,7 @@ def floor_ms(n_in: int, m: int, epochs: int) -> list[float]:
 
 
 def make_run(data: Path, name: str, n_train: int, seed: int = 0) -> Run:
-    _, loss, structure, prior, _, _ = CONFIGS[name]
+    _, loss, structure, prior, _, _, _ = CONFIGS[name]
     return prepare_run(data, LossConfig.parse(loss, ALPHA, "fixed"), atl=True,
                        n_train=n_train, seed=seed, structure=structure, prior=prior,
                        note=lambda s: None)
@@ -127,8 +131,8 @@ def make_run(data: Path, name: str, n_train: int, seed: int = 0) -> Run:
 
 def train_ms(run: Run, name: str, epochs: int) -> list[float]:
     """ms per epoch of chunks of a real training run (the trainer `pimbs train` uses)."""
-    *_, schedule, trainer = CONFIGS[name]
-    opts = TrainOptions(epochs=epochs, schedule=schedule)
+    *_, schedule, trainer, width = CONFIGS[name]
+    opts = TrainOptions(epochs=epochs, schedule=schedule, hidden=width)
     if trainer == "reference":
         return chunk_ms(lambda done: train_reference(run, opts, done, CHUNK))
     return chunk_ms(lambda done: train_runs([run], opts, done, CHUNK))
@@ -139,11 +143,12 @@ def per_epoch(data: Path, ns: list[int], epochs: int, repeats: int, ref_epochs: 
     """Median ms/epoch of the floor, Basic and default at each N, measured in alternating
     rounds (and of the paper's method, reference and fast, at N = 30)."""
     runs = {(name, n): make_run(data, name, n) for n in ns for name in ("Basic", "default")}
-    for run in runs.values():  # warm-up: allocator, kernels, first-touch pages
-        train_runs([run], TrainOptions(epochs=CHUNK))
+    for (name, _), run in runs.items():  # warm-up: allocator, kernels, first-touch pages
+        train_runs([run], TrainOptions(epochs=CHUNK, hidden=CONFIGS[name][6]))
     chunks: dict[tuple[str, int], list[float]] = {}
     for _ in range(repeats):
-        chunks.setdefault(("floor", 0), []).extend(floor_ms(n_in, m, epochs))
+        for width in (HIDDEN, DEFAULT_HIDDEN):
+            chunks.setdefault(("floor", width), []).extend(floor_ms(n_in, m, epochs, width))
         for (name, n), run in runs.items():
             chunks.setdefault((name, n), []).extend(train_ms(run, name, epochs))
     if ref_epochs:
@@ -236,7 +241,6 @@ def main() -> None:
         n_in, m = run0.scaling().n_inputs, run0.train.length.shape[1]
         startup = optimizer_startup(n_in, m, a.repeats)
         ep = per_epoch(data, ns, a.epoch_sample, a.repeats, a.ref_epochs, n_in, m)
-        floor = ep[("floor", 0)]
         print(f"per epoch measured: {_uptime()}", flush=True)
         e2e = {} if a.skip_end_to_end else end_to_end(data, a.epochs, a.processes)
         long = None
@@ -248,13 +252,15 @@ def main() -> None:
     for name, sec in startup.items():
         print(f"{name}: {sec:.3f} s (median of {a.repeats} fresh processes)")
     print()
-    print("| trainer | " + " | ".join(f"ms/epoch N={n} (× floor)" for n in ns)
+    print("| trainer (width) | " + " | ".join(f"ms/epoch N={n} (× floor)" for n in ns)
           + f" | {a.processes} × `pimbs train` {a.epochs} epochs, N=30 (s) | L_eval ×1e5 |")
     print("|---|" + "---:|" * len(ns) + "---:|---|")
-    print(f"| floor: one fused Adam step ({n_in}→1000→1000→{m}) | "
-          + " | ".join(f"{floor:.2f}" for _ in ns) + " | | |")
+    for width in (HIDDEN, DEFAULT_HIDDEN):
+        print(f"| floor: one fused Adam step ({n_in}→{width}→{width}→{m}) | "
+              + " | ".join(f"{ep[('floor', width)]:.2f}" for _ in ns) + " | | |")
     for name in CONFIGS:
         cells = []
+        floor = ep[("floor", CONFIGS[name][6])]
         for n in ns:
             v = ep.get((name, n))
             cells.append("" if v is None else f"{v:.2f} ({v / floor:.2f}×)")
@@ -263,7 +269,7 @@ def main() -> None:
         if total is not None and name != "reference" and "reference" in e2e:
             t += f" (1/{e2e['reference'][0] / total:.1f} of the reference)"
         ls = ", ".join(f"{x:.4g}" for x in losses)
-        print(f"| {name} | " + " | ".join(cells) + f" | {t} | {ls} |")
+        print(f"| {name} ({CONFIGS[name][6]}) | " + " | ".join(cells) + f" | {t} | {ls} |")
     if long is not None:
         print(f"\nOne default `pimbs train --alpha {ALPHA:g}` of {a.long_epochs} epochs at N=30, "
               f"1 thread, start-up included: {long[0]:.1f} s (L_eval {long[1]:.4g}).")

@@ -118,3 +118,29 @@ def test_population_runner_stacks_one_shape_and_resumes(tmp_path, capsys):
     assert len(out.read_text().splitlines()) == 2 * len(rows)
     text = "\n".join(runner.summary(out, "se:basic~exp", "se:basic+const~exp"))
     assert "viapoint on ours" in text and "N=5" in text and "2 arms" in text
+
+
+def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
+    """A checked default that falls back trains what Basic trains on the same cell: the batch
+    trains it once and both lines carry the same result."""
+    runner = _runner()
+    import pimbs_learn.train as train_module
+
+    trained: list[int] = []
+
+    def counting(runs, options):
+        trained.append(len(runs))
+        return train_runs(runs, options)
+
+    monkeypatch.setattr(train_module, "train_runs", counting)
+    arm = {"arm": "arm001", "dof": 2, "n_muscles": 4}
+    checked = parse_method("se:basic+const+pinn@auto~exp!check")
+    basic = parse_method("se:basic~exp")
+    jobs = [runner.Job(arm, 8, 0, checked), runner.Job(arm, 8, 0, basic),
+            runner.Job(arm, 8, 1, basic)]
+    tr, ev = split(_samples(1), 8, 0)
+    fell_back = Run(tr, ev, basic.loss, 0, True, basic.structure)  # what the check trains
+    other = Run(*split(_samples(1), 8, 1), basic.loss, 1, True, basic.structure)
+    results = runner._train_once(jobs, [fell_back, fell_back, other], OPTIONS)
+    assert trained == [2]
+    assert results[0].eval_loss == results[1].eval_loss != results[2].eval_loss
