@@ -62,9 +62,11 @@ def plan(size: str) -> list[tuple[list[str], list[int], list[int], int, int]]:
     """(methods, Ns, seeds, width, runs per stacked batch on a CPU) of each runner pass.
 
     On a CPU the paper's 1000-wide runs go one per batch: their 4 MB layers do not stack
-    (stacked, a run took about 1.2× as long per epoch on this CPU).
+    (stacked, a run took about 1.2× as long per epoch on this CPU). The default's batches are
+    cut at 24 runs, so that the two cores share the largest arm shape at N = 30 (42 runs in
+    one batch took 25 minutes on one core while the other had nothing left to do).
     """
-    passes = [([DEFAULT, BASIC], [5, 10, 30], [0, 1, 2], HIDDEN, 64),
+    passes = [([DEFAULT, BASIC], [5, 10, 30], [0, 1, 2], HIDDEN, 24),
               ([PAPER_BASIC], [10], [0], PAPER_WIDTH, 1)]
     if size == "full":
         passes += [([PAPER_BASIC, DEFAULT], [5, 10, 30], [0, 1, 2], PAPER_WIDTH, 1)]

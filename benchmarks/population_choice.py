@@ -61,6 +61,19 @@ def score(cs: list[dict], keep) -> dict[int, tuple[float, float, float, float, i
     return out
 
 
+def choose(cs: list[dict], thresholds: list[float]) -> dict[int, float]:
+    """Per N, the threshold the protocol picks (docs/learning-notebook.md §10): among those
+    meeting the safety bars on these arms (worse than 1.05× on ≤ 10 %, never worse than
+    1.5×), the lowest median ratio, ties to the lower threshold; 0 (always Basic) where none
+    meets them."""
+    out: dict[int, float] = {}
+    scored = {t: score(cs, lambda c, t=t: c["gp"] < t) for t in sorted(thresholds)}
+    for n in sorted({c["n"] for c in cs}):
+        safe = [(s[n][0], t) for t, s in scored.items() if s[n][1] <= 0.10 and s[n][2] <= 1.5]
+        out[n] = min(safe)[1] if safe else 0.0
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=Path, required=True)
@@ -80,6 +93,11 @@ def main() -> None:
         s = score(cs, keep)
         print(f"{name:11s} " + "".join(f"| {m:6.3f} {w:5.0%} {x:6.3f} {k:4.0%} "
                                        for m, w, x, k, _ in s.values()))
+    chosen = choose(cs, a.thresholds)
+    s = score(cs, lambda c: c["gp"] < chosen[c["n"]])
+    print(f"{'chosen':11s} " + "".join(f"| {m:6.3f} {w:5.0%} {x:6.3f} {k:4.0%} "
+                                       for m, w, x, k, _ in s.values()))
+    print("chosen per N: " + ", ".join(f"N = {n}: t = {t:g}" for n, t in chosen.items()))
 
 
 if __name__ == "__main__":

@@ -145,6 +145,13 @@ def _train_once(batch: list[Job], runs: list[Run], options: TrainOptions) -> lis
     return [trained[i] for i in which]
 
 
+def batch_cost(batch: list[Job]) -> float:
+    """A batch's relative training cost: runs × rows (the all-zero row included) × muscles,
+    about what its matmuls grow with."""
+    first = batch[0]
+    return len(batch) * (first.n + 1) * first.arm["n_muscles"]
+
+
 def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOptions,
                 max_eval: int) -> list[dict[str, Any]]:
     """Train one stacked batch; its JSON lines."""
@@ -218,9 +225,12 @@ def run(a: argparse.Namespace) -> None:
 
         with ProcessPoolExecutor(a.jobs, initializer=torch.set_num_threads,
                                  initargs=(a.threads,)) as pool:
-            futures = {pool.submit(train_batch, batch, {j.arm["arm"]: samples[j.arm["arm"]]
-                                                        for j in batch}, options,
-                                   a.max_eval): i for i, batch in enumerate(todo)}
+            # the costliest batches first, so that no core is left with one long batch at
+            # the end while the other idles
+            order = sorted(range(len(todo)), key=lambda i: -batch_cost(todo[i]))
+            futures = {pool.submit(train_batch, todo[i], {j.arm["arm"]: samples[j.arm["arm"]]
+                                                          for j in todo[i]}, options,
+                                   a.max_eval): i for i in order}
             for future in as_completed(futures):
                 i = futures[future]
                 write(i, todo[i], future.result())
