@@ -29,11 +29,22 @@ from pimbs_learn.noise import NoiseEstimate, noise_of
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult
 
 BASIC = LossConfig(const=False, pinn=False)
-# The physics is kept when the torques lower the pooled leave-one-out length error below
-# this share of the error without them: the rule's natural point, fixed before judging and
-# not tuned (docs/learning-notebook.md, §9); a tie ("cannot tell") falls back, since a
-# default must not hurt where it cannot tell that the physics helps.
-KEEP_BELOW = 1.0
+# The physics is kept when the torques bring the pooled leave-one-out length error below
+# this share of the error without them. One threshold per training-set size, chosen on the
+# development half of a population of drawn arms (docs/learning-notebook.md §10): the
+# safety bars first (worse than Basic by 5 % on at most a tenth of the arms, never by
+# half), then the lowest median ratio to Basic. The Gaussian process's verdict from a few
+# samples is noisy, so at small N a ratio somewhat above 1 is no evidence against the
+# physics. At 5 samples keeping the physics whatever the check says scored best within
+# the safety bars (there the automatic weight's evidence floor is what backs the physics
+# off). A run uses the threshold of the nearest size (between two, the lower).
+KEEP_BELOW = {5: float("inf"), 10: 1.5, 30: 1.2}
+
+
+def keep_below(n_train: int) -> float:
+    """The threshold for a run of ``n_train`` training samples."""
+    gap = min(abs(n_train - n) for n in KEEP_BELOW)
+    return min(t for n, t in KEEP_BELOW.items() if abs(n_train - n) == gap)
 
 
 @dataclass(frozen=True)
@@ -44,7 +55,7 @@ class SelfCheck:
     with_torque: float  # pooled squared length error, scaled units
     without_torque: float
     torque_noise_rms: float  # N·m, the evidence's torque noise (the physics weight's floor)
-    keep_below: float = KEEP_BELOW
+    keep_below: float  # the threshold of this run's training-set size
 
     @property
     def ratio(self) -> float:
@@ -58,9 +69,11 @@ class SelfCheck:
         """One line for ``pimbs train``'s output."""
         verdict = (f"kept ({loss})" if self.keeps_physics
                    else "not shown to help, so trained without it (basic)")
+        rule = ("kept whatever the ratio at this many samples" if np.isinf(self.keep_below)
+                else f"kept below ×{self.keep_below:g} at this many samples")
         return (f"self-check, each of {self.samples} training samples predicted from the "
-                f"others: the torques change the length error ×{self.ratio:.2f}; physics "
-                f"{verdict}")
+                f"others: the torques change the length error ×{self.ratio:.2f} ({rule}); "
+                f"physics {verdict}")
 
     def metrics(self) -> dict:
         return {"method": "gaussian-process leave-one-sample-out", "samples": self.samples,
@@ -69,11 +82,11 @@ class SelfCheck:
                 "physics_kept": self.keeps_physics}
 
     @classmethod
-    def from_estimate(cls, e: NoiseEstimate, keep_below: float = KEEP_BELOW) -> SelfCheck:
+    def from_estimate(cls, e: NoiseEstimate, threshold: float) -> SelfCheck:
         assert e.loo_with_torque is not None and e.loo_without_torque is not None
         return cls(samples=len(e.loo_with_torque), with_torque=float(e.loo_with_torque.sum()),
                    without_torque=float(e.loo_without_torque.sum()),
-                   torque_noise_rms=e.torque_rms, keep_below=keep_below)
+                   torque_noise_rms=e.torque_rms, keep_below=threshold)
 
 
 def applies(run: Run) -> bool:
@@ -81,11 +94,15 @@ def applies(run: Run) -> bool:
     return run.loss.pinn and run.train.n_samples >= 3 and run.train.has_tau
 
 
-def self_check(run: Run, keep_below: float = KEEP_BELOW) -> SelfCheck | None:
+def self_check(run: Run, threshold: float | None = None) -> SelfCheck | None:
     """The check on ``run``'s training rows (with a prior: on what the network learns), or
-    None where the sample set is degenerate for the Gaussian process."""
+    None where the sample set is degenerate for the Gaussian process. ``threshold``:
+    :func:`keep_below` of the run's training rows unless given."""
     e = noise_of(run.residual().train, run.seed)
-    return None if e is None else SelfCheck.from_estimate(e, keep_below)
+    if e is None:
+        return None
+    return SelfCheck.from_estimate(
+        e, keep_below(run.train.n_samples) if threshold is None else threshold)
 
 
 def train_checked(run: Run, options: TrainOptions | None = None,

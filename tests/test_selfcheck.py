@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
@@ -15,7 +14,15 @@ from pimbs_cli.main import main
 from pimbs_learn.data import load_samples, split
 from pimbs_learn.losses import LossConfig
 from pimbs_learn.run import Run, TrainOptions
-from pimbs_learn.selfcheck import BASIC, applies, self_check, train_checked
+from pimbs_learn.selfcheck import (
+    BASIC,
+    KEEP_BELOW,
+    SelfCheck,
+    applies,
+    keep_below,
+    self_check,
+    train_checked,
+)
 from pimbs_learn.train import train
 from tests.foreign_arm import record
 
@@ -41,18 +48,42 @@ def test_torques_that_fit_the_lengths_keep_the_physics(foreign):
 
 
 def test_torques_that_do_not_fit_the_lengths_fall_back(foreign):
-    """The same rows with each sample's torques taken from another sample (every number
-    realistic, none of them right): the torques cannot help, and the check says so."""
-    run = _run(foreign)
-    wrong = replace(run.train, tau=np.roll(run.train.tau, 3, axis=0))
-    check = self_check(replace(run, train=wrong))
-    assert check is not None and not check.keeps_physics and check.ratio >= 1.0
+    """The same rows with every torque of the wrong sign (a gravity model or a loadcell
+    wired backwards: every number realistic, none of them right): the torques make the
+    lengths harder to predict, and the check falls back at every size it decides at."""
+    decided = [n for n, t in KEEP_BELOW.items() if t < float("inf")]
+    assert decided
+    for n in decided:
+        run = _run(foreign, n=n)
+        check = self_check(replace(run, train=replace(run.train, tau=-run.train.tau)))
+        assert check is not None and not check.keeps_physics
+        assert check.ratio >= check.keep_below == keep_below(n)
+
+
+def test_each_training_size_reads_the_ratio_with_its_own_threshold():
+    """A run takes the threshold of the nearest size chosen on the development arms, the
+    lower of two at equal distance; the verdict and the line follow it."""
+    sizes = sorted(KEEP_BELOW)
+    for n in sizes:
+        assert keep_below(n) == KEEP_BELOW[n]
+    assert keep_below(1) == KEEP_BELOW[sizes[0]] and keep_below(1000) == KEEP_BELOW[sizes[-1]]
+    middle = (sizes[0] + sizes[1]) / 2
+    assert keep_below(middle) == min(KEEP_BELOW[sizes[0]], KEEP_BELOW[sizes[1]])
+
+    def check(ratio: float, threshold: float) -> SelfCheck:
+        return SelfCheck(samples=10, with_torque=ratio, without_torque=1.0,
+                         torque_noise_rms=0.01, keep_below=threshold)
+
+    assert check(1.2, 1.5).keeps_physics and not check(1.2, 1.0).keeps_physics
+    assert "kept below ×1.5" in check(1.2, 1.5).line("basic+const+pinn")
+    assert check(40.0, float("inf")).keeps_physics
+    assert "whatever the ratio" in check(40.0, float("inf")).line("basic+const+pinn")
 
 
 def test_a_fallback_trains_exactly_what_basic_trains(foreign):
     torch.set_num_threads(1)
     run = _run(foreign)
-    wrong = replace(run, train=replace(run.train, tau=np.roll(run.train.tau, 3, axis=0)))
+    wrong = replace(run, train=replace(run.train, tau=-run.train.tau))
     options = TrainOptions(epochs=60, hidden=16, schedule="exp")
     checked = train_checked(wrong, options)
     basic = train(replace(wrong, loss=BASIC), options)
