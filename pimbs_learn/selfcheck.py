@@ -78,7 +78,9 @@ class SelfCheck:
     def metrics(self) -> dict:
         return {"method": "gaussian-process leave-one-sample-out", "samples": self.samples,
                 "with_torque": self.with_torque, "without_torque": self.without_torque,
-                "ratio": self.ratio, "keep_below": self.keep_below,
+                "ratio": self.ratio,
+                # null where the physics is kept whatever the ratio (JSON has no infinity)
+                "keep_below": None if np.isinf(self.keep_below) else self.keep_below,
                 "physics_kept": self.keeps_physics}
 
     @classmethod

@@ -77,6 +77,9 @@ def test_each_training_size_reads_the_ratio_with_its_own_threshold():
     assert check(1.2, 1.5).keeps_physics and not check(1.2, 1.0).keeps_physics
     assert "kept below ×1.5" in check(1.2, 1.5).line("basic+const+pinn")
     assert check(40.0, float("inf")).keeps_physics
+    assert json.loads(json.dumps(check(40.0, float("inf")).metrics(), allow_nan=False)
+                      )["keep_below"] is None
+    assert check(1.2, 1.5).metrics()["keep_below"] == 1.5
     assert "whatever the ratio" in check(40.0, float("inf")).line("basic+const+pinn")
 
 
