@@ -48,6 +48,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -66,18 +67,32 @@ from pimbs_learn.widths import DEFAULT_HIDDEN, HIDDEN  # noqa: E402
 
 CHUNK = 50  # epochs per timed chunk
 ALPHA = 1e-5
-# name -> (`pimbs train` options, loss, structure, prior, schedule, trainer, width): the
-# paper's method at the paper's width, Basic and the default at `pimbs train`'s
+
+
+class Config(NamedTuple):
+    """One trainer measured: how `pimbs train` is asked for it, and what it trains."""
+
+    options: list[str]  # `pimbs train` options
+    loss: str
+    structure: str
+    prior: bool
+    schedule: str
+    trainer: str  # "fast" or "reference"
+    width: int  # hidden layers
+
+
+# the paper's method at the paper's width, Basic and the default at `pimbs train`'s
 _PAPER = ["--structure", "mlp", "--no-prior", "--alpha", str(ALPHA), "--lr-schedule",
           "constant", "--hidden", str(HIDDEN)]
-CONFIGS: dict[str, tuple[list[str], str, str, bool, str, str, int]] = {
-    "reference": (["--reference", *_PAPER], "basic+const+pinn", "mlp", False, "constant",
-                  "reference", HIDDEN),
-    "paper, fast": (_PAPER, "basic+const+pinn", "mlp", False, "constant", "fast", HIDDEN),
-    "Basic": (["--loss", "basic"], "basic", "series-elastic", True, "exp", "fast",
-              DEFAULT_HIDDEN),
-    "default": (["--alpha", str(ALPHA)], "basic+const+pinn", "series-elastic", True, "exp",
-                "fast", DEFAULT_HIDDEN),
+CONFIGS: dict[str, Config] = {
+    "reference": Config(["--reference", *_PAPER], "basic+const+pinn", "mlp", False,
+                        "constant", "reference", HIDDEN),
+    "paper, fast": Config(_PAPER, "basic+const+pinn", "mlp", False, "constant", "fast",
+                          HIDDEN),
+    "Basic": Config(["--loss", "basic"], "basic", "series-elastic", True, "exp", "fast",
+                    DEFAULT_HIDDEN),
+    "default": Config(["--alpha", str(ALPHA)], "basic+const+pinn", "series-elastic", True,
+                      "exp", "fast", DEFAULT_HIDDEN),
 }
 
 
@@ -123,17 +138,17 @@ def floor_ms(n_in: int, m: int, epochs: int, hidden: int) -> list[float]:
 
 
 def make_run(data: Path, name: str, n_train: int, seed: int = 0) -> Run:
-    _, loss, structure, prior, _, _, _ = CONFIGS[name]
-    return prepare_run(data, LossConfig.parse(loss, ALPHA, "fixed"), atl=True,
-                       n_train=n_train, seed=seed, structure=structure, prior=prior,
+    c = CONFIGS[name]
+    return prepare_run(data, LossConfig.parse(c.loss, ALPHA, "fixed"), atl=True,
+                       n_train=n_train, seed=seed, structure=c.structure, prior=c.prior,
                        note=lambda s: None)
 
 
 def train_ms(run: Run, name: str, epochs: int) -> list[float]:
     """ms per epoch of chunks of a real training run (the trainer `pimbs train` uses)."""
-    *_, schedule, trainer, width = CONFIGS[name]
-    opts = TrainOptions(epochs=epochs, schedule=schedule, hidden=width)
-    if trainer == "reference":
+    c = CONFIGS[name]
+    opts = TrainOptions(epochs=epochs, schedule=c.schedule, hidden=c.width)
+    if c.trainer == "reference":
         return chunk_ms(lambda done: train_reference(run, opts, done, CHUNK))
     return chunk_ms(lambda done: train_runs([run], opts, done, CHUNK))
 
@@ -144,7 +159,7 @@ def per_epoch(data: Path, ns: list[int], epochs: int, repeats: int, ref_epochs: 
     rounds (and of the paper's method, reference and fast, at N = 30)."""
     runs = {(name, n): make_run(data, name, n) for n in ns for name in ("Basic", "default")}
     for (name, _), run in runs.items():  # warm-up: allocator, kernels, first-touch pages
-        train_runs([run], TrainOptions(epochs=CHUNK, hidden=CONFIGS[name][6]))
+        train_runs([run], TrainOptions(epochs=CHUNK, hidden=CONFIGS[name].width))
     chunks: dict[tuple[str, int], list[float]] = {}
     for _ in range(repeats):
         for width in (HIDDEN, DEFAULT_HIDDEN):
@@ -161,7 +176,7 @@ def pimbs_train(data: Path, name: str, epochs: int, seed: int, n_train: int = 30
                 ) -> tuple[float, float]:
     """(wall seconds, L_eval ×1e5) of one `pimbs train` process, start-up included."""
     args = [*_pimbs(), "train", str(data), "--n-train", str(n_train), "--epochs", str(epochs),
-            "--seed", str(seed), "--threads", "1", *CONFIGS[name][0]]
+            "--seed", str(seed), "--threads", "1", *CONFIGS[name].options]
     t0 = time.perf_counter()
     out = subprocess.run(args, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
@@ -260,7 +275,7 @@ def main() -> None:
               + " | ".join(f"{ep[('floor', width)]:.2f}" for _ in ns) + " | | |")
     for name in CONFIGS:
         cells = []
-        floor = ep[("floor", CONFIGS[name][6])]
+        floor = ep[("floor", CONFIGS[name].width)]
         for n in ns:
             v = ep.get((name, n))
             cells.append("" if v is None else f"{v:.2f} ({v / floor:.2f}×)")
@@ -269,7 +284,7 @@ def main() -> None:
         if total is not None and name != "reference" and "reference" in e2e:
             t += f" (1/{e2e['reference'][0] / total:.1f} of the reference)"
         ls = ", ".join(f"{x:.4g}" for x in losses)
-        print(f"| {name} ({CONFIGS[name][6]}) | " + " | ".join(cells) + f" | {t} | {ls} |")
+        print(f"| {name} ({CONFIGS[name].width}) | " + " | ".join(cells) + f" | {t} | {ls} |")
     if long is not None:
         print(f"\nOne default `pimbs train --alpha {ALPHA:g}` of {a.long_epochs} epochs at N=30, "
               f"1 thread, start-up included: {long[0]:.1f} s (L_eval {long[1]:.4g}).")

@@ -85,17 +85,15 @@ def main() -> None:
     a = ap.parse_args()
     cs = cells(a.runs, a.signals, a.hidden)
     print(f"{len(cs)} cells, {len({c['arm'] for c in cs})} arms")
+    chosen = choose(cs, a.thresholds)
     rules = [(f"t = {t:g}", lambda c, t=t: c["gp"] < t) for t in a.thresholds]
     rules.append(("oracle", lambda c: c["physics"] < c["basic"]))
+    rules.append(("chosen", lambda c: c["gp"] < chosen[c["n"]]))
     print("rule        " + "".join(f"| N={n}: median  >1.05  max  kept " for n in
                                     sorted({c['n'] for c in cs})))
     for name, keep in rules:
         s = score(cs, keep)
         print(f"{name:11s} " + "".join(f"| {m:6.3f} {w:5.0%} {x:6.3f} {k:4.0%} "
-                                       for m, w, x, k, _ in s.values()))
-    chosen = choose(cs, a.thresholds)
-    s = score(cs, lambda c: c["gp"] < chosen[c["n"]])
-    print(f"{'chosen':11s} " + "".join(f"| {m:6.3f} {w:5.0%} {x:6.3f} {k:4.0%} "
                                        for m, w, x, k, _ in s.values()))
     print("chosen per N: " + ", ".join(f"N = {n}: t = {t:g}" for n, t in chosen.items()))
 

@@ -44,6 +44,7 @@ OVERSHOOT_CEILING = 0.75  # no wire is overshot beyond this fraction of f_max
 MAX_POSE_EXCURSION = 0.2  # rad the held overshoot may move a joint
 EXCURSION_SHARE = 0.2     # of a joint's range: the most it may run off a pose being held
 MIN_EXCURSION = 0.1       # rad: ... but never less (loading swings a joint by a few 0.01 rad)
+GEOMETRIC_MIN = 3e-4      # m: below this the geometry does not pick a free muscle's direction
 
 
 def pose_excursion(model: ArmModel) -> np.ndarray:
@@ -55,7 +56,6 @@ def pose_excursion(model: ArmModel) -> np.ndarray:
     loading its poses swings the rotation by up to 0.07 rad on the way to a pose it holds."""
     lo, hi = np.asarray(model.joint_range, float).T
     return np.clip(EXCURSION_SHARE * (hi - lo), MIN_EXCURSION, MAX_POSE_EXCURSION)
-GEOMETRIC_MIN = 3e-4      # m: below this the geometry does not pick a free muscle's direction
 
 
 @dataclass(frozen=True)
