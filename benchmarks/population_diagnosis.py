@@ -83,10 +83,14 @@ from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 # The split, fixed before any diagnosis ran: even seeds 0-38 develop (the arms the learning
 # work develops on); odd seeds 41-79 judge (odd seeds 1-39 and even 40-78: neither). Once the
 # judging split had been looked at, odd seeds 1-39 became a second judging split (``judge2``,
-# the same layout of families and simulators), for a rule changed after that look.
+# the same layout of families and simulators), for a rule changed after that look. Once
+# both had been looked at, a third judging split of 40 arms never drawn before, seeds 80-119
+# (``benchmarks/population.py --arms 40 --seed0 80``: 30 on PIMBS's simulator, 10 with
+# MuJoCo as the plant), for rules changed after both looks.
 SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge": [s for s in range(41, 80) if s % 2 == 1],
-          "judge2": [s for s in range(1, 40) if s % 2 == 1]}
+          "judge2": [s for s in range(1, 40) if s % 2 == 1],
+          "judge3": list(range(80, 120))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this

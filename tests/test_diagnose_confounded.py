@@ -152,6 +152,30 @@ def test_temperature_that_follows_the_load_names_neither_drift_nor_gain(tmp_path
     assert {"thermal_drift", "tension_gain"} in _explanations(result), result["ambiguous"]
 
 
+@pytest.mark.parametrize("truth", ["tension_gain", "link_mass"])
+def test_a_gain_on_every_loadcell_and_a_heavier_forearm_are_either_or(tmp_path, elbow, truth):
+    """On one joint, a gain common to every loadcell (one amplifier) scales the muscles'
+    torque exactly as a heavier forearm scales gravity: whichever is concealed, neither is
+    named, and both are offered with their fits. Before, either truth was named
+    `link_mass`: the screen adds a gain's muscles one at a time and stopped short of all
+    six, so no rival was found."""
+    spec = ("tension_gain:0.15,muscles=" + "+".join(elbow.muscles) if truth == "tension_gain"
+            else "link_mass:1.3")
+    real, ref = _pair(tmp_path, elbow, 200, [spec])
+    result, _ = diagnose(real, ref)
+    assert not {e["name"] for e in result["effects"]} & {"tension_gain", "link_mass"}, \
+        result["effects"]
+    either = next(a["either"] for a in result["ambiguous"]
+                  if {o["name"] for o in a["either"]} == {"tension_gain", "link_mass"})
+    gain = next(o for o in either if o["name"] == "tension_gain")
+    mass = next(o for o in either if o["name"] == "link_mass")
+    assert sorted(gain["muscles"]) == sorted(elbow.muscles)
+    (scale,) = mass["parameters"].values()
+    # each explains the same torque: a scale of about 1.15 one way or 1.3 the other
+    assert 1.1 < scale["mass_scale"] < 1.4, scale
+    assert all(g["gain"] > 0.05 for g in gain["parameters"].values()), gain["parameters"]
+
+
 def test_poses_file_that_does_not_fit_the_robot_is_refused_in_one_line(tmp_path, elbow):
     bad = tmp_path / "p.csv"
     for text, words in (("elbow\n0.5\n", "no column for joint"),
@@ -198,3 +222,29 @@ def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow)
     assert effects["link_mass"].magnitude == pytest.approx(0.8)
     assert effects["thermal_drift"].muscles == ()  # every loadcell
     assert list(effects)[0] == "link_mass"  # the arm's physics before the loadcell chain
+
+
+def test_a_gain_sliding_along_a_mass_is_either_or_on_a_drawn_arm(tmp_path):
+    """A drawn 2-DOF arm (population seed 35) whose second joint turns about the vertical
+    axis: only the first carries gravity, so a heavier link 2 (concealed, ×1.43) and a gain
+    on both of the first joint's loadcells move the same torques. Fitted together they slide
+    along a ridge (the gain's error widens 290-fold), and what the gain kept beside the mass
+    (a likelihood ratio of 43, from how the lengths are approximated) used to name it. Now
+    the encoder offset is named, and the rest is "either"."""
+    from pimbs_sim.conditions import draw_conditions
+    from pimbs_sim.population import make_arm
+
+    spec = make_arm(35, "viapoint", tmp_path / "arm")
+    arm = spec.load()
+    truth = draw_conditions(spec, "ours")
+    assert {e["name"] for e in truth.effects} == {"link_mass", "joint_offset"}
+    paths = []
+    for name, kwargs in (("sim", {"noise_seed": 10_035}),
+                         ("real", {"effects": truth.sim_effects(), "sensors": truth.sensors,
+                                   "noise": truth.noise})):
+        data, meta = simulate(arm, 230, "atl", seed=35, **kwargs)
+        paths.append(tmp_path / f"{name}.parquet")
+        write_recording(paths[-1], data, meta)
+    result, _ = diagnose(paths[1], paths[0], robot=spec.description)
+    assert [e["name"] for e in result["effects"]] == ["joint_offset"], result["effects"]
+    assert {"tension_gain", "link_mass"} in _explanations(result), result["ambiguous"]

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from pimbs_learn.diagnosis.confound import PER_MUSCLE, Verdict, hysteresis
+from pimbs_learn.diagnosis.confound import (
+    MAX_INFLATION,
+    PER_MUSCLE,
+    RIDGE_SHARE,
+    Verdict,
+    hysteresis,
+)
 from pimbs_learn.diagnosis.detect import detectable_text
 from pimbs_learn.diagnosis.leftover import leftover_text
 from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
@@ -145,15 +151,20 @@ def ambiguity_entry(verdict: Verdict, physics: Physics, data: Samples, joints: l
             "heldout_gain_of_first_given_this": None if held is None else held.gain,
             "heldout_likelihood_ratio_of_first_given_this": None if held is None else held.lr,
             "heldout_z_of_first_given_this": None if held is None else held.z,
-            "heldout_rows_better_with_first": None if held is None else held.improved}
+            "heldout_rows_better_with_first": None if held is None else held.improved,
+            "standard_error_widening_of_first_given_this": r.inflation}
         options.append(entry)
     best = max(o["delta_bic"] for o in options)
     for o in options:
         o["delta_bic_behind_best"] = best - o["delta_bic"]
     return {"either": options,
             "meaning": "each explanation alone fits the mismatch; what the first adds beside "
-                       "another is not confirmed (likelihood ratio, BIC and held-out rows), "
-                       "so this recording cannot tell which it is"}
+                       "another is not confirmed (likelihood ratio, BIC and held-out rows) "
+                       "or is a small remainder along a direction the recording barely holds "
+                       f"(under {RIDGE_SHARE:.0%} of the first's likelihood ratio, with "
+                       "the first's standard errors widened more than "
+                       f"{MAX_INFLATION:g}-fold when both are fitted), so this recording "
+                       "cannot tell which it is"}
 
 
 def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:

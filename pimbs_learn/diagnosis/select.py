@@ -121,11 +121,30 @@ def _base_columns(physics: Physics, data: Samples, base: Fit, r0: np.ndarray,
     return q[:, keep]
 
 
+SEEN_SHARE = 0.01  # of a joint's torque noise: what a doubled mass must move to be seen
+
+
+def mass_seen(physics: Physics, data: Samples, unit: Unit, sigma_tau: np.ndarray) -> bool:
+    """Whether doubling the mass behind ``unit`` (β = 1) moves some joint's torque, RMS over
+    the recording's poses, by at least ``SEEN_SHARE`` of that joint's noise.
+
+    A link turning about a vertical axis, or one whose centre of mass lies on its joint's
+    axis, adds nothing to that joint's gravity potential: the fitted gravity function keeps
+    only numerical dust there (10⁻⁷ N·m on a drawn arm). Its scale is then free to grow to
+    10⁴ and fit whatever small structure the residual holds, so a rival or a name would
+    rest on that dust instead of on a mass."""
+    moved = apply_effects(physics, data, [unit], np.ones(1)).tau - data.tau
+    return bool(np.any(np.sqrt(np.mean(moved**2, axis=0)) >= SEEN_SHARE * sigma_tau))
+
+
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
     """Units of ``effect`` that the residuals of ``base`` ask for (greedy, linearised)."""
     sigma = (base.sigma_len, base.sigma_tau)
     groups = [g for g in units_of(effect, data.theta.shape[1], data.tension.shape[1])
               if not any(u in base.units for u in g)]  # an effect may grow, never repeat
+    if effect == "link_mass":
+        groups = [g for g in ([u for u in g if mass_seen(physics, data, u, base.sigma_tau)]
+                              for g in groups) if g]
     taken = sum(any(u in base.units for u in g)
                 for g in units_of(effect, data.theta.shape[1], data.tension.shape[1]))
     if not groups or taken >= MAX_GROUPS.get(effect, len(groups) + taken):
