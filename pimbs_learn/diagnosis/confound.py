@@ -20,9 +20,9 @@ squared residual summed over rows and channels — the held-out likelihood ratio
 same χ² threshold. That is the backward check the
 selection applies to effects it has named, applied to the explanations it did not pick.
 Nor does A survive B when B takes over all but ``RIDGE_SHARE`` of A's likelihood ratio
-and fitting them together widens A's standard errors more than ``MAX_INFLATION``-fold:
-what A adds beside B then lies along a direction the recording barely holds, where the
-models' approximations decide (``inflation``). A gain on every
+and fitting them together widens the standard error of A's amount more than
+``MAX_INFLATION``-fold: what A adds beside B then lies along a direction the recording
+barely holds, where the models' approximations decide (``inflation``). A gain on every
 loadcell is always among a mass's rivals (one amplifier's gain scales every torque the
 muscles make, as a heavier arm does). An A with rivals is reported as "either A or B …",
 never named alone.
@@ -75,7 +75,7 @@ class Rival:
     lr_given_named: float  # B's likelihood ratio given A (A + B against A)
     delta_bic: float     # B's ΔBIC against the model without A
     heldout: Heldout | None = None  # adding A to B on held-out rows (None: not tested)
-    inflation: float = 1.0  # how much fitting B beside A widens A's standard errors
+    inflation: float = 1.0  # how much fitting B beside A widens the error of A's amount
 
 
 @dataclass
@@ -123,8 +123,9 @@ class Heldout:
         return self.lr >= chi2.isf(P_VALUE, self.df)
 
 
-# A's standard errors widened this much by fitting B beside it: their estimates correlate
-# beyond 0.995, and what A adds beside B lies along a direction the recording barely holds.
+# A's amount's standard error widened this much by fitting B beside it: the estimates
+# correlate beyond 0.995, and what A adds beside B lies along a direction the recording
+# barely holds.
 MAX_INFLATION = 10.0
 # ... while B takes over all but this share of A's likelihood ratio: what is left beside B
 # is then of the size the models' approximations make on a mismatch this large.
