@@ -24,6 +24,7 @@ from pimbs_arm.model import ArmModel
 from pimbs_arm.poses_file import floor_column, pose_plan_csv, read_pose_plan
 from pimbs_cli.main import main
 from pimbs_learn.diagnosis.model import SENSOR
+from pimbs_learn.diagnosis.report import ambiguity_text
 from pimbs_learn.diagnosis.run import diagnose
 from pimbs_recording.format import read_recording, write_recording
 from pimbs_sim.effects import parse_effect
@@ -248,3 +249,6 @@ def test_a_gain_sliding_along_a_mass_is_either_or_on_a_drawn_arm(tmp_path):
     result, _ = diagnose(paths[1], paths[0], robot=spec.description)
     assert [e["name"] for e in result["effects"]] == ["joint_offset"], result["effects"]
     assert {"tension_gain", "link_mass"} in _explanations(result), result["ambiguous"]
+    # the report says why a ratio past the naming threshold still does not name it
+    text = "\n".join(ambiguity_text(result))
+    assert "less certain" in text and "barely holds" in text, text

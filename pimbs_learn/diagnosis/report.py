@@ -246,11 +246,18 @@ def ambiguity_text(result: dict) -> list[str]:
         for o in others:
             b = o["beside_the_first"]
             held = b["heldout_likelihood_ratio_of_first_given_this"]
+            added = b["likelihood_ratio_of_first_given_this"]
+            wider = b["standard_error_widening_of_first_given_this"]
             lines.append(f"  beside {o['name']}, {first['name']} adds a likelihood ratio of "
-                         f"{b['likelihood_ratio_of_first_given_this']:.0f}"
+                         f"{added:.0f}"
                          + ("" if held is None else f", {held:.0f} on held-out rows")
                          + f"; naming needs {chi2.isf(P_VALUE, first['df']):.0f}"
                          + ("" if held is None else " in both"))
+            if wider > MAX_INFLATION and added < RIDGE_SHARE * first["likelihood_ratio"]:
+                lines.append(f"    but fitted together its amount is {wider:.0f}× less certain,"
+                             f" and that is under {RIDGE_SHARE:.0%} of the "
+                             f"{first['likelihood_ratio']:.0f} it explains alone:")
+                lines.append("    the two slide along one direction the recording barely holds")
         poses = amb.get("separating_poses")
         if poses:
             lines.append(f"  {len(poses['poses'])} poses that would tell them apart "
