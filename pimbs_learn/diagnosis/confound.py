@@ -76,6 +76,7 @@ class Rival:
     delta_bic: float     # B's ΔBIC against the model without A
     heldout: Heldout | None = None  # adding A to B on held-out rows (None: not tested)
     inflation: float = 1.0  # how much fitting B beside A widens the error of A's amount
+    ridge: bool = False     # A's ratio beside B discounted: B takes it over along a ridge
 
 
 @dataclass
@@ -303,7 +304,8 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
             if held.confirmed:
                 continue  # A adds to B what B cannot explain: B is no confounder of A
         rivals.append(Rival(effect, units, fit_b, lr_b, len(units), a_given_b,
-                            _lr(both, final), lr_b - len(units) * np.log(n), held, wider))
+                            _lr(both, final), lr_b - len(units) * np.log(n), held, wider,
+                            ridge))
     rivals.sort(key=lambda r: -r.lr)
     return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), rivals,
                    contradictions)

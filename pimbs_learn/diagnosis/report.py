@@ -152,7 +152,8 @@ def ambiguity_entry(verdict: Verdict, physics: Physics, data: Samples, joints: l
             "heldout_likelihood_ratio_of_first_given_this": None if held is None else held.lr,
             "heldout_z_of_first_given_this": None if held is None else held.z,
             "heldout_rows_better_with_first": None if held is None else held.improved,
-            "standard_error_widening_of_first_given_this": r.inflation}
+            "standard_error_widening_of_first_given_this": r.inflation,
+            "first_given_this_along_a_ridge": r.ridge}
         options.append(entry)
     best = max(o["delta_bic"] for o in options)
     for o in options:
@@ -162,7 +163,7 @@ def ambiguity_entry(verdict: Verdict, physics: Physics, data: Samples, joints: l
                        "another is not confirmed (likelihood ratio, BIC and held-out rows) "
                        "or is a small remainder along a direction the recording barely holds "
                        f"(under {RIDGE_SHARE:.0%} of the first's likelihood ratio, with "
-                       "the first's standard errors widened more than "
+                       "the error of the first's amount widened more than "
                        f"{MAX_INFLATION:g}-fold when both are fitted), so this recording "
                        "cannot tell which it is"}
 
@@ -253,7 +254,7 @@ def ambiguity_text(result: dict) -> list[str]:
                          + ("" if held is None else f", {held:.0f} on held-out rows")
                          + f"; naming needs {chi2.isf(P_VALUE, first['df']):.0f}"
                          + ("" if held is None else " in both"))
-            if wider > MAX_INFLATION and added < RIDGE_SHARE * first["likelihood_ratio"]:
+            if b["first_given_this_along_a_ridge"]:
                 lines.append(f"    but fitted together its amount is {wider:.0f}× less certain,"
                              f" and that is under {RIDGE_SHARE:.0%} of the "
                              f"{first['likelihood_ratio']:.0f} it explains alone:")
