@@ -33,10 +33,16 @@ class LossConfig:
     # epoch from the residuals themselves (see pimbs_learn.objective.auto_pinn_weight), and
     # ``alpha`` multiplies that (1 = the likelihood balance).
     weighting: str = "fixed"
+    # The torque balance also fits the sensor errors a real arm has — a gain and an offset
+    # per loadcell, a scale per joint's gravity torque — each held near zero by a prior
+    # (pimbs_learn.sensor_terms), so a consistent torque error moves its own parameter
+    # instead of bending G. Needs the automatic weight (its floors are the noise the prior
+    # is weighed against).
+    sensors: bool = False
 
     @classmethod
     def parse(cls, name: str, alpha: float = DEFAULT_ALPHA,
-              weighting: str = "fixed") -> LossConfig:
+              weighting: str = "fixed", sensors: bool = False) -> LossConfig:
         """'basic', 'basic+const', 'basic+pinn' or 'basic+const+pinn' (order-free)."""
         terms = [t.strip().lower() for t in name.split("+") if t.strip()]
         bad = sorted(set(terms) - {"basic", "const", "pinn"})
@@ -46,8 +52,11 @@ class LossConfig:
             raise ValueError(f"alpha must be ≥ 0, got {alpha}")
         if weighting not in WEIGHTINGS:
             raise ValueError(f"weighting '{weighting}' is not one of: {', '.join(WEIGHTINGS)}")
+        if sensors and ("pinn" not in terms or weighting != "auto"):
+            raise ValueError("sensor terms belong to the torque balance with the automatic "
+                             "weight (pinn@auto)")
         return cls(const="const" in terms, pinn="pinn" in terms, alpha=float(alpha),
-                   weighting=weighting)
+                   weighting=weighting, sensors=sensors)
 
     @property
     def name(self) -> str:

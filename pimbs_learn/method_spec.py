@@ -1,11 +1,13 @@
 """A training method written as one word, for research drivers that compare many of them.
 
-``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!check]``: the structure (``mlp``, the paper's network, or
-``se``, series-elastic), the loss terms (``basic``, ``basic+const``, ``basic+pinn``,
+``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!FLAG[,FLAG]]``: the structure (``mlp``, the paper's
+network, or ``se``, series-elastic), the loss terms (``basic``, ``basic+const``, ``basic+pinn``,
 ``basic+const+pinn``), the physics weight (a number, α of the paper, default 1e-5; or
 ``auto``, optionally ``autoX``/``autoxX`` to scale the automatic weight by X) and the
-learning-rate schedule (default ``constant``, the paper's Adam); ``!check`` runs the
-self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic.
+learning-rate schedule (default ``constant``, the paper's Adam); the flag ``check`` runs the
+self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic, and
+``sensors`` fits loadcell and gravity errors in the torque balance
+(:mod:`pimbs_learn.sensor_terms`).
 Examples: ``se:basic+const+pinn@auto~exp!check`` (the default of ``pimbs train`` without a
 prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 ``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
@@ -34,11 +36,13 @@ class Method:
 
 
 def parse_method(spec: str) -> Method:
-    """Parse ``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!check]``; ``ValueError`` naming what is
-    wrong."""
-    text, _, flag = spec.partition("!")
-    if flag not in ("", "check"):
-        raise ValueError(f"method '{spec}': '!{flag}' is not '!check'")
+    """Parse ``STRUCTURE:LOSS[@WEIGHT][~SCHEDULE][!FLAG[,FLAG]]``; ``ValueError`` naming
+    what is wrong."""
+    text, _, flag_text = spec.partition("!")
+    flags = set(flag_text.split(",")) - {""}
+    if flags - {"check", "sensors"}:
+        raise ValueError(f"method '{spec}': flags are 'check' and 'sensors', "
+                         f"not '{flag_text}'")
     body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
     loss, _, weight = rest.partition("@")
@@ -49,8 +53,13 @@ def parse_method(spec: str) -> Method:
     if schedule not in SCHEDULES:
         raise ValueError(f"method '{spec}': schedule '{schedule}' is not one of "
                          f"{', '.join(SCHEDULES)}")
-    if weight.startswith("auto"):
-        config = LossConfig.parse(loss, float(weight[4:].lstrip("x") or 1.0), "auto")
-    else:
-        config = LossConfig.parse(loss, float(weight or 1e-5))
-    return Method(spec, STRUCTURE_NAMES[short], config, schedule, check=flag == "check")
+    sensors = "sensors" in flags
+    try:
+        if weight.startswith("auto"):
+            config = LossConfig.parse(loss, float(weight[4:].lstrip("x") or 1.0), "auto",
+                                      sensors)
+        else:
+            config = LossConfig.parse(loss, float(weight or 1e-5), sensors=sensors)
+    except ValueError as e:
+        raise ValueError(f"method '{spec}': {e}") from None
+    return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags)

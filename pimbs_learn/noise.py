@@ -142,9 +142,63 @@ def _nll_and_grad(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.Te
     return nll, grad * np.where(z > low, 1.0, np.where(z == low, 0.5, 0.0))
 
 
+def _maximise_evidence(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.Tensor,
+                       y: torch.Tensor, base: torch.Tensor, is_len: torch.Tensor
+                       ) -> np.ndarray:
+    """The log hyperparameters after Adam on the negative log evidence, from ``z``."""
+    # Adam (lr 0.05, torch's defaults otherwise), written out for four numbers
+    m1, m2 = np.zeros(4), np.zeros(4)
+    b1, b2, lr, eps = 0.9, 0.999, 0.05, 1e-8
+    for step in range(1, _STEPS + 1):
+        _, g = _nll_and_grad(z, low, xt, ft, y, base, is_len)
+        m1 = b1 * m1 + (1 - b1) * g
+        m2 = b2 * m2 + (1 - b2) * g * g
+        denom = np.sqrt(m2) / math.sqrt(1 - b2**step) + eps
+        z = z - (lr / (1 - b1**step)) * m1 / denom
+    return z
+
+
+def _sensor_columns(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.Tensor,
+                    y: torch.Tensor, b: torch.Tensor, base: torch.Tensor,
+                    is_len: torch.Tensor, f_s: np.ndarray) -> torch.Tensor:
+    """(observations, 2M+N) how each sensor term of :mod:`pimbs_learn.sensor_terms` moves the
+    scaled torque observations, with a unit prior on each: the torque balance
+    τ = −Gᵀf' − τ·(f'−f, τ'−τ terms) is linear in them for a given G, so G is plugged in at
+    its posterior mean under the fit without them (a second-order effect of an error
+    already small)."""
+    from pimbs_learn import sensor_terms
+
+    amp, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
+    (k, kd, kdd), _ = _kernel_blocks(xt, float(ell))
+    s, n = kd.shape[:2]
+    m = ft.shape[1]
+    noise = torch.where(is_len, sl**2, st**2)
+    cov = amp**2 * _gp_covariance((k, kd, kdd), ft) + base + torch.diag(noise + 1e-10)
+    alpha = torch.cholesky_solve(y[:, None], torch.linalg.cholesky(cov))[:, 0]
+    a_l, a_t = alpha[:s * m].reshape(s, m), alpha[s * m:].reshape(s, n)
+    # E[∂_j g_m(x_i)] = s²·(Σ_k kd_ijk·α_l,km − Σ_kl f_km·kdd_ijkl·α_τ,kl)
+    dg = amp**2 * (torch.einsum("ijk,km->imj", kd, a_l)
+                   - torch.einsum("km,ijkl,kl->imj", ft, kdd, a_t))
+    coef = (b.T @ alpha) * _BASIS_PRIOR  # posterior mean of offsets, slopes, springs
+    slope = coef.reshape(m, -1)[:, 1:1 + n]  # (M, N)
+    grad = dg + slope[None]  # (S, M, N) ∂l̃/∂x at each sample
+    rows = torch.zeros(len(y), 2 * m + n, dtype=y.dtype)
+    torque_rows = slice(s * m, None)
+    gain = -sensor_terms.GAIN_SD * ft[:, :, None] * grad  # (S, M, N)
+    offset = -sensor_terms.OFFSET_SD * torch.as_tensor(f_s)[None, :, None] * grad
+    rows[torque_rows, :m] = gain.permute(0, 2, 1).reshape(s * n, m)
+    rows[torque_rows, m:2 * m] = offset.permute(0, 2, 1).reshape(s * n, m)
+    y_t = y[s * m:].reshape(s, n)
+    gravity = -sensor_terms.GRAVITY_SD * torch.diag_embed(y_t)  # (S, N, N)
+    rows[torque_rows, 2 * m:] = gravity.reshape(s * n, n)
+    return rows
+
+
 def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
-                   tau: np.ndarray, seed: int = 0) -> NoiseEstimate:
-    """Noise levels of lengths and torques that maximise the evidence (see module doc)."""
+                   tau: np.ndarray, seed: int = 0, sensors: bool = False) -> NoiseEstimate:
+    """Noise levels of lengths and torques that maximise the evidence (see module doc);
+    with ``sensors``, the torque balance may also carry the loadcell and gravity errors of
+    :mod:`pimbs_learn.sensor_terms` (so a consistent error there is not taken for noise)."""
     rng = np.random.default_rng(seed)
     most = max(3, MAX_OBSERVATIONS // (theta.shape[1] + length.shape[1]))
     if theta.shape[0] > most:
@@ -169,15 +223,11 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
     is_len = torch.arange(len(y)) < n_len
     # floors keep the covariance well conditioned where a noise would fit exactly
     low = np.array([-12.0, -5.0, math.log(1e-7), math.log(1e-7 * tau_rms)])
-    # Adam (lr 0.05, torch's defaults otherwise), written out for four numbers
-    m1, m2 = np.zeros(4), np.zeros(4)
-    b1, b2, lr, eps = 0.9, 0.999, 0.05, 1e-8
-    for step in range(1, _STEPS + 1):
-        _, g = _nll_and_grad(z, low, xt, ft, y, base, is_len)
-        m1 = b1 * m1 + (1 - b1) * g
-        m2 = b2 * m2 + (1 - b2) * g * g
-        denom = np.sqrt(m2) / math.sqrt(1 - b2**step) + eps
-        z = z - (lr / (1 - b1**step)) * m1 / denom
+    z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
+    if sensors:
+        cols = _sensor_columns(z, low, xt, ft, y, b, base, is_len, f_s)
+        base = base + cols @ cols.T
+        z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
     final, _ = _nll_and_grad(z, low, xt, ft, y, base, is_len, with_grad=False)
     amp, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
     torque_rms = float(st * np.sqrt(np.mean(t_unit**2)))
@@ -212,12 +262,12 @@ def _loo_length_sse(cov: torch.Tensor, y: torch.Tensor, sample: torch.Tensor,
     return out
 
 
-def noise_of(samples, seed: int = 0) -> NoiseEstimate | None:
+def noise_of(samples, seed: int = 0, sensors: bool = False) -> NoiseEstimate | None:
     """:func:`estimate_noise` of a sample set (anything with ``theta``, ``tension``,
     ``length`` and ``tau``), or None where it is degenerate for the Gaussian process. The
     automatic weight's floor and the self-check both read this one fit."""
     try:
         return estimate_noise(samples.theta, samples.tension, samples.length, samples.tau,
-                              seed=seed)
+                              seed=seed, sensors=sensors)
     except torch.linalg.LinAlgError:
         return None

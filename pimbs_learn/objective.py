@@ -19,6 +19,11 @@ torques included, so its own residual cannot tell a wrong torque balance (fricti
 offsets) from a right one, and α_eff falls by itself only through that floor.
 α_eff is recomputed every epoch and held constant within it (iteratively re-weighted
 least squares).
+
+Sensor terms (``sensors``, :mod:`pimbs_learn.sensor_terms`): the torque balance uses the
+tensions and gravity torques corrected by fitted loadcell and gravity errors, whose unit
+Gaussian prior enters the same profiled likelihood: its gradient, rescaled like the rest,
+is (2·max(mse_l, floor)/(B·M))·z.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ from functools import cached_property
 
 import torch
 
-from pimbs_learn.losses import basic_loss, const_loss, pinn_loss
+from pimbs_learn import sensor_terms
+from pimbs_learn.losses import basic_loss, const_loss
 from pimbs_learn.model import Params, gtf, hidden_layers, output_length
 
 
@@ -48,6 +54,8 @@ class Batch:
     auto: torch.Tensor | None = None  # (R,) 1 where α is automatic
     length_floor: torch.Tensor | None = None  # (R,) m², floor of mse_l (auto)
     torque_floor: torch.Tensor | None = None  # (R,) N²·m², floor of mse_τ (auto)
+    sensors: torch.Tensor | None = None  # (R,) 1 where the torque balance has sensor terms
+    tension_scale: torch.Tensor | None = None  # (R, 1, M) N, the offsets' unit (sensors)
 
     # cached: on a GPU each evaluation would be a host sync, once per epoch
     @cached_property
@@ -61,6 +69,10 @@ class Batch:
     @cached_property
     def use_auto(self) -> bool:
         return self.auto is not None and bool((self.auto != 0).any())
+
+    @cached_property
+    def use_sensors(self) -> bool:
+        return self.sensors is not None and bool((self.sensors != 0).any())
 
 
 # The trainer holds the elastic coefficients as c / ELASTIC_GAIN: Adam moves every
@@ -95,6 +107,39 @@ def pinn_weight(batch: Batch, lb: torch.Tensor, residual: torch.Tensor) -> torch
     return batch.pinn_weight * torch.where(batch.auto != 0, ratio, torch.ones_like(ratio))
 
 
+def _sensor_params(p: Params, batch: Batch) -> Params:
+    """The sensor terms' z of runs that have them (held as z / STEP_GAIN); zero on the
+    others."""
+    assert batch.sensors is not None
+    mask = batch.sensors.view(-1, 1, 1) * sensor_terms.STEP_GAIN
+    return {k: p[k] * mask for k in sensor_terms.KEYS}
+
+
+def balance_tension(p: Params, batch: Batch) -> torch.Tensor:
+    """f of the torque balance: as recorded, or corrected by the sensor terms."""
+    if not batch.use_sensors:
+        return batch.tension
+    assert batch.tension_scale is not None
+    return sensor_terms.tension(_sensor_params(p, batch), batch.tension, batch.tension_scale)
+
+
+def balance_residual(p: Params, batch: Batch, g: torch.Tensor) -> torch.Tensor:
+    """The torque balance's residual from g = Gᵀf: g + τ, or with the gravity scales."""
+    if not batch.use_sensors:
+        return g + batch.tau
+    return sensor_terms.residual(_sensor_params(p, batch), g, batch.tau)
+
+
+def sensor_prior_weight(batch: Batch, lb: torch.Tensor) -> torch.Tensor:
+    """(R,) weight of Σz² in L_train: α's multiplier·max(mse_l, floor)/(B·M) on runs with
+    sensor terms (the unit prior in the profiled likelihood, rescaled like its other terms),
+    0 elsewhere."""
+    assert batch.sensors is not None and batch.length_floor is not None
+    b, m = batch.length.shape[1:]
+    return (batch.sensors * batch.pinn_weight * torch.maximum(lb, batch.length_floor)
+            / (b * m))
+
+
 def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     """(L_train, L_basic), each (R,): the definition the hand-written gradient must match."""
     b = batch.length.shape[1]
@@ -103,27 +148,35 @@ def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     lb = basic_loss(l_pred[:, :b], batch.length)
     total = lb + batch.const_weight * const_loss(l_pred[:, b])
     if batch.use_pinn:
-        g = gtf(p, a1[:, :b], a2[:, :b], batch.tension, batch.length_scale,
+        g = gtf(p, a1[:, :b], a2[:, :b], balance_tension(p, batch), batch.length_scale,
                 batch.theta_inverse)
-        w = pinn_weight(batch, lb, g + batch.tau).detach()
-        total = total + w * pinn_loss(g, batch.tau)
+        res = balance_residual(p, batch, g)
+        w = pinn_weight(batch, lb, res).detach()
+        total = total + w * (res * res).mean(dim=(-2, -1))
+        if batch.use_sensors:
+            total = total + (sensor_prior_weight(batch, lb).detach()
+                             * sensor_terms.prior_sum(_sensor_params(p, batch)))
     return total, lb
 
 
-def selection_score(batch: Batch, lb: torch.Tensor, residual: torch.Tensor | None
-                    ) -> torch.Tensor:
+def selection_score(batch: Batch, lb: torch.Tensor, residual: torch.Tensor | None,
+                    prior: torch.Tensor | None = None) -> torch.Tensor:
     """(R,) what the selection rule minimises: L_basic (the paper's rule), or with the
     automatic weight the profiled negative log-likelihood per length observation,
-    log max(mse_l, floor) + (N/M)·log max(mse_τ, floor) — the quantity that weight descends,
-    so the epoch kept is the one that best explains lengths *and* torques."""
+    log max(mse_l, floor) + (N/M)·log max(mse_τ, floor) [+ Σz²/(B·M) with sensor terms,
+    ``prior`` = Σz² (R,)] — the quantity that weight descends, so the epoch kept is the one
+    that best explains lengths *and* torques."""
     if not batch.use_auto or residual is None:
         return lb
     assert batch.auto is not None and batch.length_floor is not None
     assert batch.torque_floor is not None
-    m, n = batch.length.shape[-1], batch.tau.shape[-1]
+    b, m = batch.length.shape[1:]
+    n = batch.tau.shape[-1]
     mse_t = (residual * residual).mean(dim=(-2, -1))
     nll = torch.log(torch.maximum(lb, batch.length_floor)) + (n / m) * torch.log(
         torch.maximum(mse_t, batch.torque_floor))
+    if prior is not None:
+        nll = nll + prior / (b * m)
     return torch.where(batch.auto != 0, nll, lb)
 
 
@@ -153,16 +206,20 @@ def objective_and_grads(p: Params, batch: Batch
     da2 = do @ w3
     g_w3 = do.mT @ a2
 
-    res = None
+    res = prior = None
     if batch.use_pinn:
-        v = batch.tension * ls
+        f = balance_tension(p, batch)
+        v = f * ls
         p2 = v @ w3
         q2 = p2 * s2[:, :b]
         p1 = q2 @ w2
         q1 = p1 * s1[:, :b]
         g = (q1 @ w1[..., :n]) * batch.theta_inverse
-        res = g + batch.tau
-        dg = res * (pinn_weight(batch, lb, res).view(r, 1, 1) * (2.0 / (b * n)))
+        res = balance_residual(p, batch, g)
+        dres = res * (pinn_weight(batch, lb, res).view(r, 1, 1) * (2.0 / (b * n)))
+        dg = dres
+        if batch.use_sensors:  # ∂res/∂g = 1/k per joint
+            dg = dres / (1 + sensor_terms.GRAVITY_SD * _sensor_params(p, batch)["z_gravity"])
         dgs = dg * batch.theta_inverse
         dq1 = dgs @ w1[..., :n].mT
         dp1 = dq1 * s1[:, :b]
@@ -170,6 +227,14 @@ def objective_and_grads(p: Params, batch: Batch
         dp2 = dq2 * s2[:, :b]
         g_w3 = g_w3 + v.mT @ dp2
         da2[:, :b] -= 2 * a2[:, :b] * (dq2 * p2)
+        if batch.use_sensors:
+            assert batch.sensors is not None and batch.tension_scale is not None
+            z = _sensor_params(p, batch)
+            prior = sensor_terms.prior_sum(z)
+            mask = batch.sensors.view(r, 1, 1) * sensor_terms.STEP_GAIN
+            sensor_grads = sensor_terms.grads(
+                z, (dp2 @ w3.mT) * ls, dres, g, batch.tension, batch.tension_scale,
+                sensor_prior_weight(batch, lb))
 
     dz2 = da2 * s2
     da1 = dz2 @ w2
@@ -188,4 +253,6 @@ def objective_and_grads(p: Params, batch: Batch
              "b3": do.sum(dim=1, keepdim=True)}
     if batch.phi is not None:
         grads["c"] = ELASTIC_GAIN * (do.unsqueeze(-2) * batch.phi).sum(dim=1)
-    return lb, grads, selection_score(batch, lb, res)
+    if prior is not None:
+        grads.update({k: v * mask for k, v in sensor_grads.items()})
+    return lb, grads, selection_score(batch, lb, res, prior)

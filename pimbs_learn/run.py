@@ -67,6 +67,8 @@ class Run:
             raise LearnError("the series-elastic structure is an ATL-Map (it needs tension)")
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
+        if self.loss.sensors and (self.prior is not None or not self.atl):
+            raise LearnError("sensor terms need an ATL-Map without a geometric prior")
 
     def residual(self) -> Run:
         """The run the network learns: with a prior, lengths minus the model's and τ plus
@@ -156,6 +158,8 @@ class TrainResult:
     # for when the check fell back to Basic; None without a check
     self_check: Any = None
     asked_loss: LossConfig | None = None
+    # the loadcell and gravity corrections the torque balance fitted (pimbs_learn.sensor_terms)
+    sensor_terms: dict[str, list[float]] | None = None
 
     def metrics(self) -> dict[str, Any]:
         return {
@@ -175,6 +179,7 @@ class TrainResult:
             "self_check": None if self.self_check is None else self.self_check.metrics(),
             "alpha": self.run.loss.alpha,
             "weighting": self.run.loss.weighting,
+            "sensor_terms": self.sensor_terms,
             "structure": self.run.structure,
             "prior": self.run.prior_robot,
             "map": self.run.map_name,

@@ -23,6 +23,7 @@ import time
 import numpy as np
 import torch
 
+from pimbs_learn import sensor_terms
 from pimbs_learn.adam import FusedAdam
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
@@ -52,7 +53,8 @@ def _torque_floor(r: Run, auto: bool) -> tuple[float, float | None]:
     floor = (TORQUE_FLOOR * float(np.nan_to_num(np.abs(r.train.tau)).max() + 1e-12)) ** 2
     if not auto:
         return floor, None
-    noise = _evidence_noise(r.train, r.seed) if r.torque_noise is None else r.torque_noise
+    noise = (_evidence_noise(r.train, r.seed, r.loss.sensors) if r.torque_noise is None
+             else r.torque_noise)
     if not np.isfinite(noise):  # a degenerate sample set: keep the relative floor
         return floor, None
     return max(floor, noise ** 2), noise
@@ -62,11 +64,11 @@ def torque_noise(run: Run) -> float:
     """The torque noise (N·m rms) the evidence of ``run``'s training rows supports
     (:mod:`pimbs_learn.noise`; with a prior, of the residual the network learns), or NaN
     where the sample set is degenerate."""
-    return _evidence_noise(run.residual().train, run.seed)
+    return _evidence_noise(run.residual().train, run.seed, run.loss.sensors)
 
 
-def _evidence_noise(t, seed: int) -> float:
-    e = noise_of(t, seed)
+def _evidence_noise(t, seed: int, sensors: bool = False) -> float:
+    e = noise_of(t, seed, sensors)
     return float("nan") if e is None else e.torque_rms
 
 
@@ -185,7 +187,11 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         auto=torch.tensor(is_auto, dtype=dt, device=dev),
         length_floor=torch.tensor([(LENGTH_FLOOR * float(np.abs(r.train.length).max())) ** 2
                                    for r in runs], dtype=dt, device=dev),
-        torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev))
+        torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev),
+        sensors=torch.tensor([r.loss.sensors for r in runs], dtype=dt, device=dev),
+        tension_scale=_stack([s.tension[None] if s.tension is not None
+                              else np.ones((1, len(r.train.muscles)))
+                              for s, r in zip(scalings, runs, strict=True)], dt, dev))
     x_ev = inputs("eval")
     phi_ev = basis("eval")
     l_ev = as_tensor(_padded([r.eval.length for r in runs]), dt, dev)
@@ -200,6 +206,8 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
             i["w3"].zero_()
             i["b3"].zero_()
     p: Params = {k: torch.stack([i[k] for i in inits]).to(dev) for k in inits[0]}
+    if batch.use_sensors:
+        p.update({k: v.to(dev) for k, v in sensor_terms.zeros(r_n, m, n, dt).items()})
     opt = FusedAdam(list(p.values()), options.lr)
     best_p = {k: v.detach().clone() for k, v in p.items()}
     best = torch.full((r_n,), float("inf"), dtype=dt, device=dev)  # selection score
@@ -236,7 +244,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
     weights = {k: v.cpu().float().numpy() for k, v in best_p.items()}
 
     def params_of(i: int, r: Run) -> dict[str, np.ndarray]:
-        out = {k: w[i] for k, w in weights.items()}
+        out = {k: w[i] for k, w in weights.items() if k not in sensor_terms.KEYS}
         if "c" in out:
             out["c"] = out["c"] * np.float32(ELASTIC_GAIN)
         if r.prior is not None:
@@ -248,6 +256,9 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                         train_loss=float(best_np[i]), eval_loss=float(ev[i]),
                         epochs=options.epochs, seconds=seconds, schedule=options.schedule,
                         torque_noise_rms=floors[i][1],
+                        sensor_terms=sensor_terms.physical(
+                            {k: weights[k][i] for k in sensor_terms.KEYS},
+                            scalings[i].tension) if r.loss.sensors else None,
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
             for i, r in enumerate(given)]

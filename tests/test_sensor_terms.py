@@ -1,0 +1,90 @@
+"""Sensor terms in the torque balance: exact gradients, and a consistent loadcell error is
+absorbed by its own parameter instead of by the body schema's moment arms."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from pimbs_learn import sensor_terms
+from pimbs_learn.data import LearnError
+from pimbs_learn.losses import LossConfig
+from pimbs_learn.method_spec import parse_method
+from pimbs_learn.model import init_params
+from pimbs_learn.objective import Batch
+from pimbs_learn.run import Run, TrainOptions
+from pimbs_learn.synthetic import synthetic_samples
+from pimbs_learn.train import train_runs
+from tests.test_learn import assert_hand_written_gradient
+
+F64 = torch.float64
+
+
+def test_hand_written_gradient_with_sensor_terms_matches_autograd() -> None:
+    r, b, n, m = 3, 6, 2, 4
+    gen = torch.Generator().manual_seed(1)
+    ps = [init_params(n + m, m, s, 32, F64) for s in range(r)]
+    for q in ps:  # away from the prior mean, so the prior's gradient is tested too
+        q.update({k: torch.randn(*v.shape[1:], generator=gen, dtype=F64)
+                  for k, v in sensor_terms.zeros(1, m, n, F64).items()})
+    p = {k: torch.stack([q[k] for q in ps]).requires_grad_(True) for k in ps[0]}
+    x = torch.randn(r, b + 1, n + m, generator=gen, dtype=F64)
+    x[:, b] = 0
+    batch = Batch(x=x, length=0.01 * torch.randn(r, b, m, generator=gen, dtype=F64),
+                  tension=300 * torch.rand(r, b, m, generator=gen, dtype=F64),
+                  tau=torch.randn(r, b, n, generator=gen, dtype=F64),
+                  length_scale=0.05 * torch.rand(r, 1, m, generator=gen, dtype=F64),
+                  theta_inverse=1 + torch.rand(r, 1, n, generator=gen, dtype=F64),
+                  const_weight=torch.tensor([1.0, 1.0, 0.0], dtype=F64),
+                  pinn_weight=torch.tensor([1.0, 1.0, 2.0], dtype=F64),
+                  auto=torch.ones(r, dtype=F64),
+                  length_floor=torch.full((r,), 1e-9, dtype=F64),
+                  torque_floor=torch.full((r,), 1e-4, dtype=F64),
+                  # the middle run has none: its parameters get no gradient
+                  sensors=torch.tensor([1.0, 0.0, 1.0], dtype=F64),
+                  tension_scale=torch.full((r, 1, m), 300.0, dtype=F64))
+    assert_hand_written_gradient(p, batch)
+
+
+def test_a_consistent_loadcell_gain_moves_its_own_parameter() -> None:
+    """One loadcell reads 30 % high on every sample. With sensor terms the fit scales that
+    loadcell down against the others (which stay near 1), and the held-out lengths are
+    better than without them, where the moment arms absorb the error."""
+    truth = synthetic_samples(30, seed=3)
+    wrong = truth.tension.copy()
+    wrong[:, 1] *= 1.3
+    recorded = replace(truth, tension=wrong)
+    ev = synthetic_samples(64, seed=99)
+    loss = LossConfig.parse("basic+const+pinn", 1.0, "auto", sensors=True)
+    run = Run(recorded, replace(ev, tension=ev.tension * np.array([1, 1.3, 1, 1])), loss,
+              seed=0)
+    without = replace(run, loss=replace(loss, sensors=False))
+    opts = TrainOptions(epochs=3000, hidden=48, dtype=F64, schedule="exp")
+    res, plain = train_runs([run, without], opts)
+    gains = np.array(res.sensor_terms["tension_gain"])
+    others = np.delete(gains, 1)
+    assert gains[1] / np.median(others) < 0.9  # toward 1/1.3 = 0.77
+    assert np.abs(others - 1).max() < 0.1
+    assert res.eval_loss < 0.95 * plain.eval_loss
+    assert plain.sensor_terms is None
+    assert set(res.metrics()["sensor_terms"]) == {"tension_gain", "tension_offset_n",
+                                                  "gravity_scale"}
+    assert not set(res.params) & set(sensor_terms.KEYS)  # the model file holds none
+
+
+def test_sensor_terms_are_asked_for_explicitly_and_only_where_they_mean_something() -> None:
+    assert parse_method("se:basic+const+pinn@auto~exp!sensors").loss.sensors
+    m = parse_method("se:basic+const+pinn@auto~exp!check,sensors")
+    assert m.check and m.loss.sensors
+    assert not parse_method("se:basic+const+pinn@auto~exp!check").loss.sensors
+    with pytest.raises(ValueError, match="pinn@auto"):
+        parse_method("se:basic+const+pinn@1e-5!sensors")
+    with pytest.raises(ValueError, match="flags are"):
+        parse_method("se:basic+const+pinn@auto!sensor")
+    run = Run(synthetic_samples(5), synthetic_samples(5, seed=9),
+              LossConfig.parse("basic+pinn", 1.0, "auto", sensors=True), atl=False)
+    with pytest.raises(LearnError, match="ATL-Map"):
+        run.check()
