@@ -58,6 +58,11 @@ JOINT_ANGLE_ROWS = 64
               help="train without the physics terms where the training rows do not show "
                    "that the recorded torques help predict lengths at poses left out "
                    "(each sample predicted from the others, with and without torques)")
+@click.option("--sensor-terms/--no-sensor-terms", "sensors", default=False, show_default=True,
+              help="fit a gain and an offset per loadcell and a gravity scale per joint "
+                   "inside the torque balance (each held near none by a prior), so a "
+                   "consistent sensor error does not bend the body schema; needs the "
+                   "automatic weight and no prior")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
                    "--lr-schedule constant --hidden 1000 --no-self-check (options given "
@@ -82,7 +87,8 @@ JOINT_ANGLE_ROWS = 64
 def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, loss: str,
             structure: str, alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
-            schedule: str, hidden: int, check: bool, paper: bool, robot: str | None,
+            schedule: str, hidden: int, check: bool, sensors: bool, paper: bool,
+            robot: str | None,
             device: str, out: Path | None, json_path: Path | None, reference: bool,
             force: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording).
@@ -130,7 +136,11 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     weighting = weighting or ("fixed" if alpha is not None else "auto")
     if alpha is None:
         alpha = 1.0 if weighting == "auto" else DEFAULT_ALPHA
-    run = prepare_run(data, LossConfig.parse(loss, alpha, weighting), atl=map_kind == "atl",
+    if sensors and not (weighting == "auto" and "pinn" in loss.split("+")):
+        raise click.UsageError("--sensor-terms fit errors inside the torque balance: they "
+                               "need the pinn loss with the automatic weight (no --alpha)")
+    run = prepare_run(data, LossConfig.parse(loss, alpha, weighting, sensors),
+                      atl=map_kind == "atl",
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot,
                       structure=structure, prior=prior and not reference,
                       note=lambda s: console.print(f"note: {s}", markup=False))
@@ -152,6 +162,11 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         result = trainer(run, options, progress=update)
     if result.self_check is not None:
         console.print(result.self_check.line(run.loss.name), markup=False)
+    if result.sensor_terms is not None:
+        from pimbs_learn.sensor_terms import line
+
+        console.print(line(result.sensor_terms, list(run.train.muscles),
+                           list(run.train.joints)), markup=False)
 
     metrics = result.metrics()
     metrics.update(data=str(data), data_sha256=run.train.sha256,

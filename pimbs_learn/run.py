@@ -68,7 +68,8 @@ class Run:
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
         if self.loss.sensors and (self.prior is not None or not self.atl):
-            raise LearnError("sensor terms need an ATL-Map without a geometric prior")
+            raise LearnError("sensor terms need an ATL-Map without a geometric prior "
+                             "(pimbs train: --no-prior)")
 
     def residual(self) -> Run:
         """The run the network learns: with a prior, lengths minus the model's and τ plus

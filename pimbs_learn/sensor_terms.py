@@ -85,7 +85,30 @@ def physical(held: dict[str, np.ndarray], f_scale: np.ndarray) -> dict[str, list
     user reads: the factor and the newtons added to each loadcell's reading, the factor on
     each joint's gravity torque."""
     z = {k: STEP_GAIN * v.astype(np.float64) for k, v in held.items()}
-    return {"tension_gain": (1 + GAIN_SD * z["z_gain"].ravel()).tolist(),
+    return {"tension_scale_n": f_scale.ravel().tolist(),
+            "tension_gain": (1 + GAIN_SD * z["z_gain"].ravel()).tolist(),
             "tension_offset_n": (OFFSET_SD * f_scale.ravel() * z["z_offset"].ravel()).tolist(),
             # the factor on τ that Gᵀf'/k + τ = 0 implies: τ·k balances Gᵀf'
             "gravity_scale": (1 + GRAVITY_SD * z["z_gravity"].ravel()).tolist()}
+
+
+def line(fitted: dict[str, list[float]], muscles: list[str], joints: list[str],
+         most: int = 4) -> str:
+    """One line for ``pimbs train``: the fitted corrections a prior SD or more from none,
+    largest first (a consistent sensor error the recording carries), or that there were
+    none."""
+    entries: list[tuple[float, str]] = []
+    for name, g in zip(muscles, fitted["tension_gain"], strict=True):
+        z = (g - 1) / GAIN_SD
+        entries.append((abs(z), f"{name} loadcell ×{g:.3f}"))
+    for name, o, s in zip(muscles, fitted["tension_offset_n"], fitted["tension_scale_n"],
+                          strict=True):
+        entries.append((abs(o / (OFFSET_SD * s)), f"{name} loadcell {o:+.3g} N"))
+    for name, k in zip(joints, fitted["gravity_scale"], strict=True):
+        entries.append((abs((k - 1) / GRAVITY_SD), f"{name} gravity ×{k:.3f}"))
+    big = sorted((e for e in entries if e[0] >= 1.0), reverse=True)[:most]
+    if not big:
+        return ("sensor terms: every loadcell gain and offset and every gravity scale "
+                "fitted within one prior SD of none")
+    return ("sensor terms fitted beyond one prior SD (the torque balance's consistent "
+            "errors, not the body schema's): " + ", ".join(text for _, text in big))

@@ -71,7 +71,10 @@ def test_a_consistent_loadcell_gain_moves_its_own_parameter() -> None:
     assert res.eval_loss < 0.95 * plain.eval_loss
     assert plain.sensor_terms is None
     assert set(res.metrics()["sensor_terms"]) == {"tension_gain", "tension_offset_n",
-                                                  "gravity_scale"}
+                                                  "gravity_scale", "tension_scale_n"}
+    # the user's line names that loadcell first
+    said = sensor_terms.line(res.sensor_terms, list(recorded.muscles), list(recorded.joints))
+    assert said.split(": ", 1)[1].startswith(f"{recorded.muscles[1]} loadcell ×")
     assert not set(res.params) & set(sensor_terms.KEYS)  # the model file holds none
 
 
@@ -88,3 +91,28 @@ def test_sensor_terms_are_asked_for_explicitly_and_only_where_they_mean_somethin
               LossConfig.parse("basic+pinn", 1.0, "auto", sensors=True), atl=False)
     with pytest.raises(LearnError, match="ATL-Map"):
         run.check()
+
+
+def test_pimbs_train_reports_the_fitted_sensor_terms_and_refuses_them_where_meaningless(
+        tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from pimbs_cli.main import main
+    from pimbs_learn.io import load_body_schema
+    from tests.foreign_arm import record
+
+    torch.set_num_threads(1)
+    data = tmp_path / "f.parquet"
+    record(data, 30, 1)
+    args = ["train", str(data), "--n-train", "10", "--epochs", "30", "--threads", "1",
+            "--sensor-terms"]
+    out = CliRunner().invoke(main, [*args, "--no-prior", "--json", str(tmp_path / "m.json"),
+                                    "--out", str(tmp_path / "model")])
+    assert out.exit_code == 0, out.output
+    assert "sensor terms" in out.output
+    import json
+    fitted = json.loads((tmp_path / "m.json").read_text())["sensor_terms"]
+    assert len(fitted["tension_gain"]) == len(fitted["tension_offset_n"]) > 0
+    load_body_schema(tmp_path / "model")  # the model file is the body schema alone
+    out = CliRunner().invoke(main, [*args, "--no-prior", "--alpha", "1e-5"])
+    assert out.exit_code != 0 and "automatic weight" in out.output
