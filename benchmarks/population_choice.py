@@ -26,9 +26,10 @@ PHYSICS = "se:basic+const+pinn@auto~exp"
 BASIC = "se:basic~exp"
 
 
-def cells(runs: Path, signals: Path, hidden: int | None) -> list[dict]:
-    """One dict per cell with both runs and the evidence: arm, n, seed, physics, basic,
-    ratio (GP), family."""
+def cells(runs: Path, signals: Path, hidden: int | None, physics: str = PHYSICS
+          ) -> list[dict]:
+    """One dict per cell with both runs and the evidence: arm, n, seed, physics (the run of
+    method ``physics``), basic, ratio (GP), family."""
     sig = {(r["arm"], r["n"], r["seed"]): r for r in
            map(json.loads, signals.read_text().splitlines()) if r}
     by: dict[tuple, dict] = defaultdict(dict)
@@ -37,9 +38,9 @@ def cells(runs: Path, signals: Path, hidden: int | None) -> list[dict]:
             by[(r["arm"], r["n"], r["seed"])][r["method"]] = r
     out = []
     for key, m in sorted(by.items()):
-        if PHYSICS in m and BASIC in m and key in sig:
+        if physics in m and BASIC in m and key in sig:
             out.append({"arm": key[0], "n": key[1], "seed": key[2],
-                        "physics": m[PHYSICS]["eval"], "basic": m[BASIC]["eval"],
+                        "physics": m[physics]["eval"], "basic": m[BASIC]["eval"],
                         "gp": sig[key]["ratio"],
                         "family": f"{m[BASIC]['family']} on {m[BASIC]['simulator']}"})
     return out
@@ -79,11 +80,13 @@ def main() -> None:
     ap.add_argument("--runs", type=Path, required=True)
     ap.add_argument("--signals", type=Path, required=True)
     ap.add_argument("--hidden", type=int, default=None)
+    ap.add_argument("--physics", default=PHYSICS,
+                    help="the method with physics terms the check keeps or replaces by Basic")
     ap.add_argument("--thresholds", nargs="+", type=float,
                     default=[0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0, 1.05, 1.1, 1.2, 1.5, 2.0,
                              float("inf")])
     a = ap.parse_args()
-    cs = cells(a.runs, a.signals, a.hidden)
+    cs = cells(a.runs, a.signals, a.hidden, a.physics)
     print(f"{len(cs)} cells, {len({c['arm'] for c in cs})} arms")
     chosen = choose(cs, a.thresholds)
     rules = [(f"t = {t:g}", lambda c, t=t: c["gp"] < t) for t in a.thresholds]

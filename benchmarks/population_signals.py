@@ -42,6 +42,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--out", type=Path, required=True, help="JSON lines, appended")
+    ap.add_argument("--sensors", action="store_true",
+                    help="the evidence with the sensor terms allowed (what the check of a "
+                         "'!check,sensors' method reads)")
     a = ap.parse_args()
     import torch
 
@@ -58,7 +61,8 @@ def main() -> None:
                     continue
                 tr, _ = split(pool, n, seed)
                 t0 = time.perf_counter()
-                e = estimate_noise(tr.theta, tr.tension, tr.length, tr.tau, seed=seed)
+                e = estimate_noise(tr.theta, tr.tension, tr.length, tr.tau, seed=seed,
+                                   sensors=a.sensors)
                 line = {"arm": arm["arm"], "n": n, "seed": seed, "family": arm["family"],
                         "simulator": arm["simulator"], "split": arm["split"],
                         "torque_rms": e.torque_rms, "length_rms": e.length_rms,
