@@ -7,8 +7,8 @@ the odd seeds 41–79 (judged in docs/learning-notebook.md §9), ``second``, the
 of ``--seed0 80`` (§12). Every cell (arm, N, seed) trains, paired (same rows, same initial weights):
 
 * the **default** as ``pimbs train --no-prior --n-train N --seed S`` runs it: its width,
-  series-elastic structure, physics terms with the automatic weight, exp schedule, and its
-  self-check, which may fall back to Basic;
+  series-elastic structure, physics terms with the automatic weight and sensor terms, exp
+  schedule, and its self-check, which may fall back to Basic;
 * **Basic** with the default's structure, schedule and width (``--loss basic``);
 * the **paper's Basic** (1000-1000 network, constant lr, ``pimbs train --paper --loss
   basic``): in the ``cpu`` size at N = 10 with seed 0, in the ``full`` size everywhere.
@@ -48,7 +48,7 @@ from pimbs_learn.paired import paired_change  # noqa: E402
 HALVES = {"first": [f"arm{s:03d}" for s in range(41, 80, 2)],
           "second": [f"arm{s:03d}" for s in range(40, 79, 2)],
           "third": [f"arm{s:03d}" for s in range(80, 119, 2)]}
-DEFAULT = "se:basic+const+pinn@auto~exp!check"
+DEFAULT = "se:basic+const+pinn@auto~exp!check,sensors"
 BASIC = "se:basic~exp"
 PAPER_BASIC = "mlp:basic"  # the paper's network and constant-lr Adam, fixed α unused
 PAPER_WIDTH = 1000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -58,11 +59,12 @@ JOINT_ANGLE_ROWS = 64
               help="train without the physics terms where the training rows do not show "
                    "that the recorded torques help predict lengths at poses left out "
                    "(each sample predicted from the others, with and without torques)")
-@click.option("--sensor-terms/--no-sensor-terms", "sensors", default=False, show_default=True,
+@click.option("--sensor-terms/--no-sensor-terms", "sensors", default=None,
               help="fit a gain and an offset per loadcell and a gravity scale per joint "
                    "inside the torque balance (each held near none by a prior), so a "
-                   "consistent sensor error does not bend the body schema; needs the "
-                   "automatic weight and no prior")
+                   "consistent sensor error does not bend the body schema [default: on where "
+                   "the balance can carry them: the pinn loss with the automatic weight on "
+                   "an ATL-Map without a prior]")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
                    "--lr-schedule constant --hidden 1000 --no-self-check (options given "
@@ -105,7 +107,8 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         given = {name for name in ctx.params
                  if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT}
         paper_values = {"structure": "mlp", "prior": False, "alpha": DEFAULT_PAPER_ALPHA,
-                        "schedule": "constant", "hidden": HIDDEN, "check": False}
+                        "schedule": "constant", "hidden": HIDDEN, "check": False,
+                        "sensors": False}
         values = {k: v for k, v in paper_values.items() if k not in given}
         structure = values.get("structure", structure)
         prior = values.get("prior", prior)
@@ -113,6 +116,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         schedule = values.get("schedule", schedule)
         hidden = values.get("hidden", hidden)
         check = values.get("check", check)
+        sensors = values.get("sensors", sensors)
     # refuse an output that exists or cannot be written before minutes of training
     if out is not None and not (out.is_dir() and not any(out.iterdir())):  # empty dir: ok
         check_output(out, force=force, what="model")
@@ -139,17 +143,22 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     if sensors and not (weighting == "auto" and "pinn" in loss.split("+")):
         raise click.UsageError("--sensor-terms fit errors inside the torque balance: they "
                                "need the pinn loss with the automatic weight (no --alpha)")
-    run = prepare_run(data, LossConfig.parse(loss, alpha, weighting, sensors),
+    run = prepare_run(data, LossConfig.parse(loss, alpha, weighting, bool(sensors)),
                       atl=map_kind == "atl",
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot,
                       structure=structure, prior=prior and not reference,
                       note=lambda s: console.print(f"note: {s}", markup=False))
+    if sensors is None and run.loss.pinn and run.loss.weighting == "auto" and run.atl \
+            and run.prior is None:
+        run = replace(run, loss=replace(run.loss, sensors=True))
     torch.manual_seed(seed)
     options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden,
                            schedule=schedule)
     checked = check and not reference and applies(run)
     trainer = train_reference if reference else (train_checked if checked else train)
     weight = (f"automatic α ×{alpha:g}" if weighting == "auto" else f"α={alpha:g}")
+    if run.loss.sensors:
+        weight += ", sensor terms"
     console.print(f"{map_kind.upper()}-Map ({run.structure}"
                   f"{f', prior {run.prior_robot}' if run.prior_robot else ''}), {run.loss.name}"
                   f"{f' ({weight})' if run.loss.pinn else ''}: {run.train.n_samples} "

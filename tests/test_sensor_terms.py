@@ -116,3 +116,11 @@ def test_pimbs_train_reports_the_fitted_sensor_terms_and_refuses_them_where_mean
     load_body_schema(tmp_path / "model")  # the model file is the body schema alone
     out = CliRunner().invoke(main, [*args, "--no-prior", "--alpha", "1e-5"])
     assert out.exit_code != 0 and "automatic weight" in out.output
+    # on by default where the balance can carry them; off with --no-sensor-terms, --paper
+    base = args[:-1] + ["--json", str(tmp_path / "d.json"), "--force", "--no-prior"]
+    for extra, on in (([], True), (["--no-sensor-terms"], False), (["--paper"], False),
+                      (["--alpha", "1e-5"], False)):
+        out = CliRunner().invoke(main, base + extra)
+        assert out.exit_code == 0, out.output
+        assert ("sensor terms" in out.output) == on, extra
+        assert (json.loads((tmp_path / "d.json").read_text())["sensor_terms"] is None) != on
