@@ -13,39 +13,30 @@ from pimbs_learn import sensor_terms
 from pimbs_learn.data import LearnError
 from pimbs_learn.losses import LossConfig
 from pimbs_learn.method_spec import parse_method
-from pimbs_learn.model import init_params
-from pimbs_learn.objective import Batch
 from pimbs_learn.run import Run, TrainOptions
 from pimbs_learn.synthetic import synthetic_samples
 from pimbs_learn.train import train_runs
-from tests.test_learn import assert_hand_written_gradient
+from tests.test_learn import _batch, assert_hand_written_gradient
 
 F64 = torch.float64
 
 
 def test_hand_written_gradient_with_sensor_terms_matches_autograd() -> None:
-    r, b, n, m = 3, 6, 2, 4
+    p, batch = _batch()
+    r, b, m = batch.length.shape
+    n = batch.tau.shape[-1]
     gen = torch.Generator().manual_seed(1)
-    ps = [init_params(n + m, m, s, 32, F64) for s in range(r)]
-    for q in ps:  # away from the prior mean, so the prior's gradient is tested too
-        q.update({k: torch.randn(*v.shape[1:], generator=gen, dtype=F64)
-                  for k, v in sensor_terms.zeros(1, m, n, F64).items()})
-    p = {k: torch.stack([q[k] for q in ps]).requires_grad_(True) for k in ps[0]}
-    x = torch.randn(r, b + 1, n + m, generator=gen, dtype=F64)
-    x[:, b] = 0
-    batch = Batch(x=x, length=0.01 * torch.randn(r, b, m, generator=gen, dtype=F64),
-                  tension=300 * torch.rand(r, b, m, generator=gen, dtype=F64),
-                  tau=torch.randn(r, b, n, generator=gen, dtype=F64),
-                  length_scale=0.05 * torch.rand(r, 1, m, generator=gen, dtype=F64),
-                  theta_inverse=1 + torch.rand(r, 1, n, generator=gen, dtype=F64),
-                  const_weight=torch.tensor([1.0, 1.0, 0.0], dtype=F64),
-                  pinn_weight=torch.tensor([1.0, 1.0, 2.0], dtype=F64),
-                  auto=torch.ones(r, dtype=F64),
-                  length_floor=torch.full((r,), 1e-9, dtype=F64),
-                  torque_floor=torch.full((r,), 1e-4, dtype=F64),
-                  # the middle run has none: its parameters get no gradient
-                  sensors=torch.tensor([1.0, 0.0, 1.0], dtype=F64),
-                  tension_scale=torch.full((r, 1, m), 300.0, dtype=F64))
+    # away from the prior mean, so the prior's gradient is tested too
+    p.update({k: torch.randn(*v.shape, generator=gen, dtype=F64).requires_grad_(True)
+              for k, v in sensor_terms.zeros(r, m, n, F64).items()})
+    batch = replace(batch, const_weight=torch.tensor([1.0, 1.0, 0.0], dtype=F64),
+                    pinn_weight=torch.tensor([1.0, 1.0, 2.0], dtype=F64),
+                    auto=torch.ones(r, dtype=F64),
+                    length_floor=torch.full((r,), 1e-9, dtype=F64),
+                    torque_floor=torch.full((r,), 1e-4, dtype=F64),
+                    # the middle run has none: its parameters get no gradient
+                    sensors=torch.tensor([1.0, 0.0, 1.0], dtype=F64),
+                    tension_scale=torch.full((r, 1, m), 300.0, dtype=F64))
     assert_hand_written_gradient(p, batch)
 
 
