@@ -162,10 +162,10 @@ def _sensor_columns(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.
                     y: torch.Tensor, b: torch.Tensor, base: torch.Tensor,
                     is_len: torch.Tensor, f_s: np.ndarray) -> torch.Tensor:
     """(observations, 2M+N) how each sensor term of :mod:`pimbs_learn.sensor_terms` moves the
-    scaled torque observations, with a unit prior on each: the torque balance
-    τ = −Gᵀf' − τ·(f'−f, τ'−τ terms) is linear in them for a given G, so G is plugged in at
-    its posterior mean under the fit without them (a second-order effect of an error
-    already small)."""
+    scaled torque observations, with a unit prior on each. The balance Gᵀf'/k + τ = 0 gives,
+    to first order in the z, τ = −Gᵀf − Gᵀ(f' − f) − (k − 1)·τ: linear in the z for a given
+    G, so G is plugged in at its posterior mean under the fit without them (the error of
+    that is second order: an unknown G times an error already small)."""
     from pimbs_learn import sensor_terms
 
     amp, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
