@@ -148,8 +148,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
                       n_train=n_train, eval_path=eval_path, seed=seed, robot=robot,
                       structure=structure, prior=prior and not reference,
                       note=lambda s: console.print(f"note: {s}", markup=False))
-    if sensors is None and run.loss.pinn and run.loss.weighting == "auto" and run.atl \
-            and run.prior is None:
+    if sensors is None and run.sensor_terms_apply:
         run = replace(run, loss=replace(run.loss, sensors=True))
     torch.manual_seed(seed)
     options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden,

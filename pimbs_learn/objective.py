@@ -115,19 +115,20 @@ def _sensor_params(p: Params, batch: Batch) -> Params:
     return {k: p[k] * mask for k in sensor_terms.KEYS}
 
 
-def balance_tension(p: Params, batch: Batch) -> torch.Tensor:
-    """f of the torque balance: as recorded, or corrected by the sensor terms."""
-    if not batch.use_sensors:
+def balance_tension(z: Params | None, batch: Batch) -> torch.Tensor:
+    """f of the torque balance: as recorded, or corrected by the sensor terms' ``z``
+    (:func:`_sensor_params`; None without sensor terms)."""
+    if z is None:
         return batch.tension
     assert batch.tension_scale is not None
-    return sensor_terms.tension(_sensor_params(p, batch), batch.tension, batch.tension_scale)
+    return sensor_terms.tension(z, batch.tension, batch.tension_scale)
 
 
-def balance_residual(p: Params, batch: Batch, g: torch.Tensor) -> torch.Tensor:
+def balance_residual(z: Params | None, batch: Batch, g: torch.Tensor) -> torch.Tensor:
     """The torque balance's residual from g = Gᵀf: g + τ, or with the gravity scales."""
-    if not batch.use_sensors:
+    if z is None:
         return g + batch.tau
-    return sensor_terms.residual(_sensor_params(p, batch), g, batch.tau)
+    return sensor_terms.residual(z, g, batch.tau)
 
 
 def sensor_prior_weight(batch: Batch, lb: torch.Tensor) -> torch.Tensor:
@@ -148,14 +149,15 @@ def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     lb = basic_loss(l_pred[:, :b], batch.length)
     total = lb + batch.const_weight * const_loss(l_pred[:, b])
     if batch.use_pinn:
-        g = gtf(p, a1[:, :b], a2[:, :b], balance_tension(p, batch), batch.length_scale,
+        z = _sensor_params(p, batch) if batch.use_sensors else None
+        g = gtf(p, a1[:, :b], a2[:, :b], balance_tension(z, batch), batch.length_scale,
                 batch.theta_inverse)
-        res = balance_residual(p, batch, g)
+        res = balance_residual(z, batch, g)
         w = pinn_weight(batch, lb, res).detach()
         total = total + w * (res * res).mean(dim=(-2, -1))
-        if batch.use_sensors:
+        if z is not None:
             total = total + (sensor_prior_weight(batch, lb).detach()
-                             * sensor_terms.prior_sum(_sensor_params(p, batch)))
+                             * sensor_terms.prior_sum(z))
     return total, lb
 
 
@@ -208,18 +210,16 @@ def objective_and_grads(p: Params, batch: Batch
 
     res = prior = None
     if batch.use_pinn:
-        f = balance_tension(p, batch)
-        v = f * ls
+        z = _sensor_params(p, batch) if batch.use_sensors else None
+        v = balance_tension(z, batch) * ls
         p2 = v @ w3
         q2 = p2 * s2[:, :b]
         p1 = q2 @ w2
         q1 = p1 * s1[:, :b]
         g = (q1 @ w1[..., :n]) * batch.theta_inverse
-        res = balance_residual(p, batch, g)
+        res = balance_residual(z, batch, g)
         dres = res * (pinn_weight(batch, lb, res).view(r, 1, 1) * (2.0 / (b * n)))
-        dg = dres
-        if batch.use_sensors:  # ∂res/∂g = 1/k per joint
-            dg = dres / (1 + sensor_terms.GRAVITY_SD * _sensor_params(p, batch)["z_gravity"])
+        dg = dres if z is None else dres / sensor_terms.gravity_factor(z)  # ∂res/∂g = 1/k
         dgs = dg * batch.theta_inverse
         dq1 = dgs @ w1[..., :n].mT
         dp1 = dq1 * s1[:, :b]
@@ -227,9 +227,8 @@ def objective_and_grads(p: Params, batch: Batch
         dp2 = dq2 * s2[:, :b]
         g_w3 = g_w3 + v.mT @ dp2
         da2[:, :b] -= 2 * a2[:, :b] * (dq2 * p2)
-        if batch.use_sensors:
+        if z is not None:
             assert batch.sensors is not None and batch.tension_scale is not None
-            z = _sensor_params(p, batch)
             prior = sensor_terms.prior_sum(z)
             mask = batch.sensors.view(r, 1, 1) * sensor_terms.STEP_GAIN
             sensor_grads = sensor_terms.grads(

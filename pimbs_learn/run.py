@@ -51,6 +51,14 @@ class Run:
         return "atl" if self.atl else "al"
 
     @property
+    def sensor_terms_apply(self) -> bool:
+        """Can the torque balance carry sensor terms: the pinn loss with the automatic
+        weight, on an ATL-Map (tensions measured) without a geometric prior (whose own Gᵀf
+        they would have to correct too)."""
+        return (self.loss.pinn and self.loss.weighting == "auto" and self.atl
+                and self.prior is None)
+
+    @property
     def network_inputs_tension(self) -> bool:
         """Does the MLP itself take f (the paper's ATL-Map), or only θ?"""
         return self.atl and self.structure == MLP
@@ -67,9 +75,9 @@ class Run:
             raise LearnError("the series-elastic structure is an ATL-Map (it needs tension)")
         if self.loss.pinn and not np.isfinite(self.train.tau).all():
             raise LearnError("the PINN loss needs tau_gravity for every training sample")
-        if self.loss.sensors and (self.prior is not None or not self.atl):
-            raise LearnError("sensor terms need an ATL-Map without a geometric prior "
-                             "(pimbs train: --no-prior)")
+        if self.loss.sensors and not self.sensor_terms_apply:
+            raise LearnError("sensor terms need the pinn loss with the automatic weight, on "
+                             "an ATL-Map without a geometric prior (pimbs train: --no-prior)")
 
     def residual(self) -> Run:
         """The run the network learns: with a prior, lengths minus the model's and τ plus

@@ -55,10 +55,15 @@ def tension(p: dict[str, torch.Tensor], f: torch.Tensor, f_scale: torch.Tensor
     return f * (1 + GAIN_SD * p["z_gain"]) + (OFFSET_SD * f_scale) * p["z_offset"]
 
 
+def gravity_factor(p: dict[str, torch.Tensor]) -> torch.Tensor:
+    """k (R, 1, N): each joint's fitted scale of its gravity torque."""
+    return 1 + GRAVITY_SD * p["z_gravity"]
+
+
 def residual(p: dict[str, torch.Tensor], gtf: torch.Tensor, tau: torch.Tensor
              ) -> torch.Tensor:
     """Gᵀf'/k + τ (R, B, N), from ``gtf`` = Gᵀf' and the gravity torques τ."""
-    return gtf / (1 + GRAVITY_SD * p["z_gravity"]) + tau
+    return gtf / gravity_factor(p) + tau
 
 
 def prior_sum(p: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -72,7 +77,7 @@ def grads(p: dict[str, torch.Tensor], d_tension: torch.Tensor, d_residual: torch
     """∂/∂z of L_pinn (through ∂L/∂f' and ∂L/∂residual, each (R, B, ·), and Gᵀf') plus the
     prior's ``prior_weight``·Σz² ((R,) weight; 0 on runs without sensor terms)."""
     w = 2 * prior_weight.view(-1, 1, 1)
-    k = 1 + GRAVITY_SD * p["z_gravity"]
+    k = gravity_factor(p)
     return {"z_gain": GAIN_SD * (d_tension * f).sum(dim=1, keepdim=True) + w * p["z_gain"],
             "z_offset": OFFSET_SD * f_scale * d_tension.sum(dim=1, keepdim=True)
             + w * p["z_offset"],
