@@ -20,7 +20,8 @@ most arms on the cheaper simulator.
 
 Cached: an arm whose manifest line matches the settings and whose files still have the
 hashes recorded is not made again. Every recording is integrated to rest as fast as the CPU
-allows (no bus, no clock).
+allows (no bus, no clock). An arm whose MuJoCo plant blows up while recording gets no
+manifest line; the run names it and goes on.
 
     OMP_NUM_THREADS=1 nice -n 10 .venv/bin/python benchmarks/population.py \\
         --arms 40 --out population --samples 230 --jobs 2
@@ -167,16 +168,23 @@ def main() -> None:
         if s not in todo:
             print(summary_line(lines[arm_name(s)], "cached"), flush=True)
     t0 = time.perf_counter()
+    failed: list[str] = []
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
         futures = {pool.submit(make_one, s, out, a.samples): s for s in todo}
-        for future in futures:
-            d = future.result()
+        for future, s in futures.items():
+            try:
+                d = future.result()
+            except FloatingPointError as e:  # the plant blew up: no recording, say so
+                failed.append(arm_name(s))
+                print(f"{arm_name(s)} not recorded: {e}", flush=True)
+                continue
             lines[d["arm"]] = d
             write_manifest(out, lines)
             print(summary_line(d, f"{d['seconds']['total']:.1f} s"), flush=True)
     wall = time.perf_counter() - t0
-    made = [lines[arm_name(s)] for s in todo]
+    made = [lines[arm_name(s)] for s in todo if arm_name(s) not in failed]
     cpu = sum(d["seconds"]["total"] for d in made)
+    seeds = [s for s in seeds if arm_name(s) not in failed]
     by = {}
     for s in seeds:
         d = lines[arm_name(s)]
@@ -190,7 +198,9 @@ def main() -> None:
     print("shapes (joints, muscles): " + "; ".join(
         f"{k[0]}x{k[1]}: {v['dev']} dev + {v['judge']} judge" for k, v in sorted(shapes.items())))
     print(f"made {len(made)} arms in {wall:.0f} s wall ({cpu:.0f} s of work, "
-          f"{a.jobs} job(s)); {a.arms - len(made)} cached; manifest {out / 'manifest.jsonl'}")
+          f"{a.jobs} job(s)); {a.arms - len(made) - len(failed)} cached; "
+          f"{len(failed)} not recorded{' (' + ', '.join(failed) + ')' if failed else ''}; "
+          f"manifest {out / 'manifest.jsonl'}")
 
 
 if __name__ == "__main__":
