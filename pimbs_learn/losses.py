@@ -39,15 +39,10 @@ class LossConfig:
     # instead of bending G. Needs the automatic weight (its floors are the noise the prior
     # is weighed against).
     sensors: bool = False
-    # With the sensor terms, each joint may also carry a torque beside gravity and the
-    # tendons: a constant and a stiffness (a spring, a cable's preload, to first order an
-    # encoder offset's gravity error), held near zero by the same kind of prior.
-    joints: bool = False
 
     @classmethod
     def parse(cls, name: str, alpha: float = DEFAULT_ALPHA,
-              weighting: str = "fixed", sensors: bool = False,
-              joints: bool = False) -> LossConfig:
+              weighting: str = "fixed", sensors: bool = False) -> LossConfig:
         """'basic', 'basic+const', 'basic+pinn' or 'basic+const+pinn' (order-free)."""
         terms = [t.strip().lower() for t in name.split("+") if t.strip()]
         bad = sorted(set(terms) - {"basic", "const", "pinn"})
@@ -60,10 +55,8 @@ class LossConfig:
         if sensors and ("pinn" not in terms or weighting != "auto"):
             raise ValueError("sensor terms belong to the torque balance with the automatic "
                              "weight (pinn@auto)")
-        if joints and not sensors:
-            raise ValueError("joint torque terms come with the sensor terms")
         return cls(const="const" in terms, pinn="pinn" in terms, alpha=float(alpha),
-                   weighting=weighting, sensors=sensors, joints=joints)
+                   weighting=weighting, sensors=sensors)
 
     @property
     def name(self) -> str:

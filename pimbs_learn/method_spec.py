@@ -7,8 +7,7 @@ network, or ``se``, series-elastic), the loss terms (``basic``, ``basic+const``,
 learning-rate schedule (default ``constant``, the paper's Adam); the flag ``check`` runs the
 self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic, and
 ``sensors`` fits loadcell and gravity errors in the torque balance
-(:mod:`pimbs_learn.sensor_terms`), and ``joints`` (with ``sensors``) also a torque and a
-stiffness per joint.
+(:mod:`pimbs_learn.sensor_terms`).
 Examples: ``se:basic+const+pinn@auto~exp!check`` (the default of ``pimbs train`` without a
 prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 ``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
@@ -41,8 +40,8 @@ def parse_method(spec: str) -> Method:
     what is wrong."""
     text, _, flag_text = spec.partition("!")
     flags = set(flag_text.split(",")) - {""}
-    if flags - {"check", "sensors", "joints"}:
-        raise ValueError(f"method '{spec}': flags are 'check', 'sensors' and 'joints', "
+    if flags - {"check", "sensors"}:
+        raise ValueError(f"method '{spec}': flags are 'check' and 'sensors', "
                          f"not '{flag_text}'")
     body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
@@ -54,14 +53,13 @@ def parse_method(spec: str) -> Method:
     if schedule not in SCHEDULES:
         raise ValueError(f"method '{spec}': schedule '{schedule}' is not one of "
                          f"{', '.join(SCHEDULES)}")
-    sensors, joints = "sensors" in flags, "joints" in flags
+    sensors = "sensors" in flags
     try:
         if weight.startswith("auto"):
             config = LossConfig.parse(loss, float(weight[4:].lstrip("x") or 1.0), "auto",
-                                      sensors, joints)
+                                      sensors)
         else:
-            config = LossConfig.parse(loss, float(weight or 1e-5), sensors=sensors,
-                                      joints=joints)
+            config = LossConfig.parse(loss, float(weight or 1e-5), sensors=sensors)
     except ValueError as e:
         raise ValueError(f"method '{spec}': {e}") from None
     return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags)

@@ -194,30 +194,11 @@ def _sensor_columns(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.
     return rows
 
 
-def _joint_columns(x: np.ndarray, tau: np.ndarray, t_unit: np.ndarray, n_len: int
-                   ) -> torch.Tensor:
-    """(observations, 2N) how the joint torque terms of :mod:`pimbs_learn.sensor_terms` (a
-    constant and a stiffness in the scaled angle per joint) move the scaled torque
-    observations, with a unit prior on each: they enter the balance linearly."""
-    from pimbs_learn import sensor_terms
-
-    s, n = x.shape
-    unit = sensor_terms.TORQUE_SD * sensor_terms.torque_scale(tau) / t_unit  # (N,)
-    eye = np.eye(n)
-    const = np.broadcast_to(eye * unit, (s, n, n))  # (S, N rows, N terms)
-    stiff = eye[None] * (x * unit)[:, None, :]
-    rows = np.zeros((n_len + s * n, 2 * n))
-    rows[n_len:] = np.concatenate([const, stiff], axis=2).reshape(s * n, 2 * n)
-    return torch.as_tensor(rows)
-
-
 def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
-                   tau: np.ndarray, seed: int = 0, sensors: bool = False,
-                   joints: bool = False) -> NoiseEstimate:
+                   tau: np.ndarray, seed: int = 0, sensors: bool = False) -> NoiseEstimate:
     """Noise levels of lengths and torques that maximise the evidence (see module doc);
     with ``sensors``, the torque balance may also carry the loadcell and gravity errors of
-    :mod:`pimbs_learn.sensor_terms` (so a consistent error there is not taken for noise),
-    and with ``joints`` also its joint torque terms."""
+    :mod:`pimbs_learn.sensor_terms` (so a consistent error there is not taken for noise)."""
     rng = np.random.default_rng(seed)
     most = max(3, MAX_OBSERVATIONS // (theta.shape[1] + length.shape[1]))
     if theta.shape[0] > most:
@@ -245,8 +226,6 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
     z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
     if sensors:
         cols = _sensor_columns(z, low, xt, ft, y, b, base, is_len, f_s)
-        if joints:
-            cols = torch.cat([cols, _joint_columns(x, tau, t_unit, s * m)], dim=1)
         base = base + cols @ cols.T
         z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
     final, _ = _nll_and_grad(z, low, xt, ft, y, base, is_len, with_grad=False)
@@ -283,13 +262,12 @@ def _loo_length_sse(cov: torch.Tensor, y: torch.Tensor, sample: torch.Tensor,
     return out
 
 
-def noise_of(samples, seed: int = 0, sensors: bool = False, joints: bool = False
-             ) -> NoiseEstimate | None:
+def noise_of(samples, seed: int = 0, sensors: bool = False) -> NoiseEstimate | None:
     """:func:`estimate_noise` of a sample set (anything with ``theta``, ``tension``,
     ``length`` and ``tau``), or None where it is degenerate for the Gaussian process. The
     automatic weight's floor and the self-check both read this one fit."""
     try:
         return estimate_noise(samples.theta, samples.tension, samples.length, samples.tau,
-                              seed=seed, sensors=sensors, joints=joints)
+                              seed=seed, sensors=sensors)
     except torch.linalg.LinAlgError:
         return None

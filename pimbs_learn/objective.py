@@ -56,8 +56,6 @@ class Batch:
     torque_floor: torch.Tensor | None = None  # (R,) N²·m², floor of mse_τ (auto)
     sensors: torch.Tensor | None = None  # (R,) 1 where the torque balance has sensor terms
     tension_scale: torch.Tensor | None = None  # (R, 1, M) N, the offsets' unit (sensors)
-    joints: torch.Tensor | None = None  # (R,) 1 where the balance has joint torque terms
-    torque_scale: torch.Tensor | None = None  # (R, 1, N) N·m, their unit (joints)
 
     # cached: on a GPU each evaluation would be a host sync, once per epoch
     @cached_property
@@ -112,11 +110,9 @@ def pinn_weight(batch: Batch, lb: torch.Tensor, residual: torch.Tensor) -> torch
 def _sensor_params(p: Params, batch: Batch) -> Params:
     """The sensor terms' z of runs that have them (held as z / STEP_GAIN); zero on the
     others."""
-    assert batch.sensors is not None and batch.joints is not None
+    assert batch.sensors is not None
     mask = batch.sensors.view(-1, 1, 1) * sensor_terms.STEP_GAIN
-    joint_mask = batch.joints.view(-1, 1, 1) * sensor_terms.STEP_GAIN
-    return {k: p[k] * (joint_mask if k in sensor_terms.JOINT_KEYS else mask)
-            for k in sensor_terms.KEYS}
+    return {k: p[k] * mask for k in sensor_terms.KEYS}
 
 
 def balance_tension(z: Params | None, batch: Batch) -> torch.Tensor:
@@ -132,14 +128,7 @@ def balance_residual(z: Params | None, batch: Batch, g: torch.Tensor) -> torch.T
     """The torque balance's residual from g = Gᵀf: g + τ, or with the gravity scales."""
     if z is None:
         return g + batch.tau
-    assert batch.torque_scale is not None
-    return sensor_terms.residual(z, g, batch.tau, batch.torque_scale, _angle(batch))
-
-
-def _angle(batch: Batch) -> torch.Tensor:
-    """(R, B, N) the training rows' scaled joint angles (the joint torque terms' variable)."""
-    b, n = batch.length.shape[1], batch.tau.shape[-1]
-    return batch.x[:, :b, :n]
+    return sensor_terms.residual(z, g, batch.tau)
 
 
 def sensor_prior_weight(batch: Batch, lb: torch.Tensor) -> torch.Tensor:
@@ -241,12 +230,10 @@ def objective_and_grads(p: Params, batch: Batch
         if z is not None:
             assert batch.sensors is not None and batch.tension_scale is not None
             prior = sensor_terms.prior_sum(z)
-            assert batch.joints is not None and batch.torque_scale is not None
             mask = batch.sensors.view(r, 1, 1) * sensor_terms.STEP_GAIN
-            joint_mask = batch.joints.view(r, 1, 1) * sensor_terms.STEP_GAIN
             sensor_grads = sensor_terms.grads(
                 z, (dp2 @ w3.mT) * ls, dres, g, batch.tension, batch.tension_scale,
-                batch.torque_scale, _angle(batch), sensor_prior_weight(batch, lb))
+                sensor_prior_weight(batch, lb))
 
     dz2 = da2 * s2
     da1 = dz2 @ w2
@@ -266,6 +253,5 @@ def objective_and_grads(p: Params, batch: Batch
     if batch.phi is not None:
         grads["c"] = ELASTIC_GAIN * (do.unsqueeze(-2) * batch.phi).sum(dim=1)
     if prior is not None:
-        grads.update({k: v * (joint_mask if k in sensor_terms.JOINT_KEYS else mask)
-                      for k, v in sensor_grads.items()})
+        grads.update({k: v * mask for k, v in sensor_grads.items()})
     return lb, grads, selection_score(batch, lb, res, prior)

@@ -100,7 +100,7 @@ def self_check(run: Run, threshold: float | None = None) -> SelfCheck | None:
     """The check on ``run``'s training rows (with a prior: on what the network learns), or
     None where the sample set is degenerate for the Gaussian process. ``threshold``:
     :func:`keep_below` of the run's training rows unless given."""
-    e = noise_of(run.residual().train, run.seed, run.loss.sensors, run.loss.joints)
+    e = noise_of(run.residual().train, run.seed, run.loss.sensors)
     if e is None:
         return None
     return SelfCheck.from_estimate(

@@ -38,10 +38,7 @@ import torch
 GAIN_SD = 0.1
 OFFSET_SD = 0.05  # share of the largest recorded tension (the network's tension scale)
 GRAVITY_SD = 0.2
-TORQUE_SD = 0.1  # share of each joint's largest recorded gravity torque
-SENSOR_KEYS = ("z_gain", "z_offset", "z_gravity")
-JOINT_KEYS = ("z_torque", "z_stiffness")  # the joint torque terms (``joints``)
-KEYS = SENSOR_KEYS + JOINT_KEYS
+KEYS = ("z_gain", "z_offset", "z_gravity")
 STEP_GAIN = 30.0
 
 
@@ -49,24 +46,7 @@ def zeros(runs: int, muscles: int, joints: int, dtype: torch.dtype) -> dict[str,
     """The sensor parameters of ``runs`` stacked runs at their prior mean."""
     return {"z_gain": torch.zeros(runs, 1, muscles, dtype=dtype),
             "z_offset": torch.zeros(runs, 1, muscles, dtype=dtype),
-            "z_gravity": torch.zeros(runs, 1, joints, dtype=dtype),
-            "z_torque": torch.zeros(runs, 1, joints, dtype=dtype),
-            "z_stiffness": torch.zeros(runs, 1, joints, dtype=dtype)}
-
-
-def torque_scale(tau: np.ndarray) -> np.ndarray:
-    """(N,) the unit of each joint's torque terms: its largest recorded gravity torque (a
-    joint that gravity never loads gets none)."""
-    return np.abs(tau).max(axis=0) if len(tau) else np.zeros(tau.shape[-1])
-
-
-def joint_torque(p: dict[str, torch.Tensor], t_scale: torch.Tensor, u: torch.Tensor
-                 ) -> torch.Tensor:
-    """(R, B, N) the torque each joint carries beside gravity and the tendons — a constant
-    and a stiffness in the joint's own scaled angle ``u`` (R, B, N), in units of
-    ``t_scale`` (R, 1, N): a spring or cable preload at the joint, and to first order the
-    gravity error of an encoder offset."""
-    return (TORQUE_SD * t_scale) * (p["z_torque"] + p["z_stiffness"] * u)
+            "z_gravity": torch.zeros(runs, 1, joints, dtype=dtype)}
 
 
 def tension(p: dict[str, torch.Tensor], f: torch.Tensor, f_scale: torch.Tensor
@@ -80,11 +60,10 @@ def gravity_factor(p: dict[str, torch.Tensor]) -> torch.Tensor:
     return 1 + GRAVITY_SD * p["z_gravity"]
 
 
-def residual(p: dict[str, torch.Tensor], gtf: torch.Tensor, tau: torch.Tensor,
-             t_scale: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Gᵀf'/k + τ + τ_joint (R, B, N), from ``gtf`` = Gᵀf', the gravity torques τ and
-    :func:`joint_torque` (zero where its z are)."""
-    return gtf / gravity_factor(p) + tau + joint_torque(p, t_scale, u)
+def residual(p: dict[str, torch.Tensor], gtf: torch.Tensor, tau: torch.Tensor
+             ) -> torch.Tensor:
+    """Gᵀf'/k + τ (R, B, N), from ``gtf`` = Gᵀf' and the gravity torques τ."""
+    return gtf / gravity_factor(p) + tau
 
 
 def prior_sum(p: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -93,37 +72,25 @@ def prior_sum(p: dict[str, torch.Tensor]) -> torch.Tensor:
 
 
 def grads(p: dict[str, torch.Tensor], d_tension: torch.Tensor, d_residual: torch.Tensor,
-          gtf: torch.Tensor, f: torch.Tensor, f_scale: torch.Tensor, t_scale: torch.Tensor,
-          u: torch.Tensor, prior_weight: torch.Tensor) -> dict[str, torch.Tensor]:
+          gtf: torch.Tensor, f: torch.Tensor, f_scale: torch.Tensor,
+          prior_weight: torch.Tensor) -> dict[str, torch.Tensor]:
     """∂/∂z of L_pinn (through ∂L/∂f' and ∂L/∂residual, each (R, B, ·), and Gᵀf') plus the
     prior's ``prior_weight``·Σz² ((R,) weight; 0 on runs without sensor terms)."""
     w = 2 * prior_weight.view(-1, 1, 1)
     k = gravity_factor(p)
-    d_joint = (TORQUE_SD * t_scale) * d_residual
     return {"z_gain": GAIN_SD * (d_tension * f).sum(dim=1, keepdim=True) + w * p["z_gain"],
             "z_offset": OFFSET_SD * f_scale * d_tension.sum(dim=1, keepdim=True)
             + w * p["z_offset"],
             "z_gravity": -GRAVITY_SD * (d_residual * gtf).sum(dim=1, keepdim=True) / (k * k)
-            + w * p["z_gravity"],
-            "z_torque": d_joint.sum(dim=1, keepdim=True) + w * p["z_torque"],
-            "z_stiffness": (d_joint * u).sum(dim=1, keepdim=True) + w * p["z_stiffness"]}
+            + w * p["z_gravity"]}
 
 
-def physical(held: dict[str, np.ndarray], f_scale: np.ndarray, t_scale: np.ndarray,
-             theta_scale: np.ndarray, joints: bool) -> dict[str, list[float]]:
+def physical(held: dict[str, np.ndarray], f_scale: np.ndarray) -> dict[str, list[float]]:
     """One run's fitted corrections (``held``: the trainer's z / STEP_GAIN) in the units a
     user reads: the factor and the newtons added to each loadcell's reading, the factor on
-    each joint's gravity torque, and with ``joints`` each joint's extra torque at zero angle
-    and its stiffness."""
+    each joint's gravity torque."""
     z = {k: STEP_GAIN * v.astype(np.float64) for k, v in held.items()}
-    out = {} if not joints else {
-        "joint_torque_scale_nm": t_scale.ravel().tolist(),
-        "joint_angle_scale_rad": theta_scale.ravel().tolist(),
-        # the torque the balance adds beside gravity (the sign of τ): at θ = 0, per rad
-        "joint_torque_nm": (TORQUE_SD * t_scale.ravel() * z["z_torque"].ravel()).tolist(),
-        "joint_stiffness_nm_per_rad": (TORQUE_SD * t_scale.ravel() * z["z_stiffness"].ravel()
-                                       / theta_scale.ravel()).tolist()}
-    return out | {"tension_scale_n": f_scale.ravel().tolist(),
+    return {"tension_scale_n": f_scale.ravel().tolist(),
             "tension_gain": (1 + GAIN_SD * z["z_gain"].ravel()).tolist(),
             "tension_offset_n": (OFFSET_SD * f_scale.ravel() * z["z_offset"].ravel()).tolist(),
             # the factor on τ that Gᵀf'/k + τ = 0 implies: τ·k balances Gᵀf'
@@ -144,15 +111,6 @@ def line(fitted: dict[str, list[float]], muscles: list[str], joints: list[str],
         entries.append((abs(o / (OFFSET_SD * s)), f"{name} loadcell {o:+.3g} N"))
     for name, k in zip(joints, fitted["gravity_scale"], strict=True):
         entries.append((abs((k - 1) / GRAVITY_SD), f"{name} gravity ×{k:.3f}"))
-    for name, t, s in zip(joints, fitted.get("joint_torque_nm", []),
-                          fitted.get("joint_torque_scale_nm", []), strict=False):
-        entries.append((abs(t) / (TORQUE_SD * s) if s > 0 else 0.0,
-                        f"{name} torque {t:+.3g} N·m"))
-    for name, k, s, a in zip(joints, fitted.get("joint_stiffness_nm_per_rad", []),
-                             fitted.get("joint_torque_scale_nm", []),
-                             fitted.get("joint_angle_scale_rad", []), strict=False):
-        entries.append((abs(k) * a / (TORQUE_SD * s) if s > 0 else 0.0,
-                        f"{name} stiffness {k:+.3g} N·m/rad"))
     big = sorted((e for e in entries if e[0] >= 1.0), reverse=True)[:most]
     if not big:
         return ("sensor terms: every loadcell gain and offset and every gravity scale "

@@ -53,8 +53,7 @@ def _torque_floor(r: Run, auto: bool) -> tuple[float, float | None]:
     floor = (TORQUE_FLOOR * float(np.nan_to_num(np.abs(r.train.tau)).max() + 1e-12)) ** 2
     if not auto:
         return floor, None
-    noise = (_evidence_noise(r.train, r.seed, r.loss.sensors, r.loss.joints)
-             if r.torque_noise is None
+    noise = (_evidence_noise(r.train, r.seed, r.loss.sensors) if r.torque_noise is None
              else r.torque_noise)
     if not np.isfinite(noise):  # a degenerate sample set: keep the relative floor
         return floor, None
@@ -65,11 +64,11 @@ def torque_noise(run: Run) -> float:
     """The torque noise (N·m rms) the evidence of ``run``'s training rows supports
     (:mod:`pimbs_learn.noise`; with a prior, of the residual the network learns), or NaN
     where the sample set is degenerate."""
-    return _evidence_noise(run.residual().train, run.seed, run.loss.sensors, run.loss.joints)
+    return _evidence_noise(run.residual().train, run.seed, run.loss.sensors)
 
 
-def _evidence_noise(t, seed: int, sensors: bool = False, joints: bool = False) -> float:
-    e = noise_of(t, seed, sensors, joints)
+def _evidence_noise(t, seed: int, sensors: bool = False) -> float:
+    e = noise_of(t, seed, sensors)
     return float("nan") if e is None else e.torque_rms
 
 
@@ -192,10 +191,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         sensors=torch.tensor([r.loss.sensors for r in runs], dtype=dt, device=dev),
         tension_scale=_stack([s.tension[None] if s.tension is not None
                               else np.ones((1, len(r.train.muscles)))
-                              for s, r in zip(scalings, runs, strict=True)], dt, dev),
-        joints=torch.tensor([r.loss.joints for r in runs], dtype=dt, device=dev),
-        torque_scale=_stack([sensor_terms.torque_scale(np.nan_to_num(r.train.tau))[None]
-                             for r in runs], dt, dev))
+                              for s, r in zip(scalings, runs, strict=True)], dt, dev))
     x_ev = inputs("eval")
     phi_ev = basis("eval")
     l_ev = as_tensor(_padded([r.eval.length for r in runs]), dt, dev)
@@ -262,9 +258,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                         torque_noise_rms=floors[i][1],
                         sensor_terms=sensor_terms.physical(
                             {k: weights[k][i] for k in sensor_terms.KEYS},
-                            scalings[i].tension,
-                            sensor_terms.torque_scale(np.nan_to_num(r.train.tau)),
-                            scalings[i].theta, r.loss.joints) if r.loss.sensors else None,
+                            scalings[i].tension) if r.loss.sensors else None,
                         curve_epochs=np.asarray(curve_e, int), curve_eval=curve[:, i],
                         curve_train=curve_tr[:, i])
             for i, r in enumerate(given)]

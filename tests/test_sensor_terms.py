@@ -34,12 +34,9 @@ def test_hand_written_gradient_with_sensor_terms_matches_autograd() -> None:
                     auto=torch.ones(r, dtype=F64),
                     length_floor=torch.full((r,), 1e-9, dtype=F64),
                     torque_floor=torch.full((r,), 1e-4, dtype=F64),
-                    # the middle run has none: its parameters get no gradient; the last
-                    # has no joint torque terms
+                    # the middle run has none: its parameters get no gradient
                     sensors=torch.tensor([1.0, 0.0, 1.0], dtype=F64),
-                    tension_scale=torch.full((r, 1, m), 300.0, dtype=F64),
-                    joints=torch.tensor([1.0, 0.0, 0.0], dtype=F64),
-                    torque_scale=torch.full((r, 1, n), 2.0, dtype=F64))
+                    tension_scale=torch.full((r, 1, m), 300.0, dtype=F64))
     assert_hand_written_gradient(p, batch)
 
 
