@@ -39,9 +39,6 @@ class LossConfig:
     # instead of bending G. Needs the automatic weight (its floors are the noise the prior
     # is weighed against).
     sensors: bool = False
-    # L_const weighed as one training sample (h(0)² over B·M) instead of as many as there
-    # are training rows (over M): the home pose is one more point, not all of them.
-    const_as_sample: bool = False
 
     @classmethod
     def parse(cls, name: str, alpha: float = DEFAULT_ALPHA,

@@ -15,7 +15,7 @@ prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from pimbs_learn.graph import MLP, SERIES_ELASTIC
 from pimbs_learn.losses import LossConfig
@@ -40,8 +40,8 @@ def parse_method(spec: str) -> Method:
     what is wrong."""
     text, _, flag_text = spec.partition("!")
     flags = set(flag_text.split(",")) - {""}
-    if flags - {"check", "sensors", "constsample"}:
-        raise ValueError(f"method '{spec}': flags are 'check', 'sensors' and 'constsample', "
+    if flags - {"check", "sensors"}:
+        raise ValueError(f"method '{spec}': flags are 'check' and 'sensors', "
                          f"not '{flag_text}'")
     body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
@@ -62,6 +62,4 @@ def parse_method(spec: str) -> Method:
             config = LossConfig.parse(loss, float(weight or 1e-5), sensors=sensors)
     except ValueError as e:
         raise ValueError(f"method '{spec}': {e}") from None
-    if "constsample" in flags:
-        config = replace(config, const_as_sample=True)
     return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags)

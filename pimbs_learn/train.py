@@ -180,9 +180,7 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
         tension=_stack([r.train.tension for r in runs], dt, dev),
         tau=_stack([np.nan_to_num(r.train.tau) for r in runs], dt, dev),
         length_scale=ls, theta_inverse=th_inv,
-        const_weight=torch.tensor([r.loss.const_weight / (r.train.n_samples
-                                                           if r.loss.const_as_sample else 1)
-                                   for r in runs], dtype=dt, device=dev),
+        const_weight=torch.tensor([r.loss.const_weight for r in runs], dtype=dt, device=dev),
         pinn_weight=torch.tensor([r.loss.pinn_weight for r in runs], dtype=dt, device=dev),
         phi=None if phi_tr is None else torch.cat([phi_tr, torch.zeros_like(phi_tr[:, :1])],
                                                   dim=1),
