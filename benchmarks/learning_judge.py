@@ -4,7 +4,8 @@ Judging halves of ``benchmarks/population.py``'s arms, each 20 arms (via points 
 on PIMBS's simulator, MJCF on MuJoCo as the plant) on which nothing was chosen: ``first``,
 the odd seeds 41–79 (judged in docs/learning-notebook.md §9), ``second``, the even seeds
 40–78 (§10), both of ``--seed0 0`` and ``--seed0 40``, ``third``, the even seeds 80–118
-of ``--seed0 80`` (§12), and ``fourth``, the even seeds 120–158 of ``--seed0 120`` (§13).
+of ``--seed0 80`` (§12), and ``fourth``, the even seeds 120–158 of ``--seed0 120`` (§13;
+19 arms: arm150's MuJoCo plant cannot be recorded).
 Every cell (arm, N, seed) trains, paired (same rows, same initial weights):
 
 * the **default** as ``pimbs train --no-prior --n-train N --seed S`` runs it: its width,

@@ -176,6 +176,8 @@ def main() -> None:
                 d = future.result()
             except FloatingPointError as e:  # the plant blew up: no recording, say so
                 failed.append(arm_name(s))
+                if lines.pop(arm_name(s), None) is not None:  # an older line is not this arm
+                    write_manifest(out, lines)
                 print(f"{arm_name(s)} not recorded: {e}", flush=True)
                 continue
             lines[d["arm"]] = d
