@@ -107,9 +107,11 @@ def pinn_weight(batch: Batch, lb: torch.Tensor, residual: torch.Tensor) -> torch
     return batch.pinn_weight * torch.where(batch.auto != 0, ratio, torch.ones_like(ratio))
 
 
-def _sensor_params(p: Params, batch: Batch) -> Params:
+def _sensor_params(p: Params, batch: Batch) -> Params | None:
     """The sensor terms' z of runs that have them (held as z / STEP_GAIN); zero on the
-    others."""
+    others; None where no run has them."""
+    if not batch.use_sensors:
+        return None
     assert batch.sensors is not None
     mask = batch.sensors.view(-1, 1, 1) * sensor_terms.STEP_GAIN
     return {k: p[k] * mask for k in sensor_terms.KEYS}
@@ -149,7 +151,7 @@ def objective(p: Params, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
     lb = basic_loss(l_pred[:, :b], batch.length)
     total = lb + batch.const_weight * const_loss(l_pred[:, b])
     if batch.use_pinn:
-        z = _sensor_params(p, batch) if batch.use_sensors else None
+        z = _sensor_params(p, batch)
         g = gtf(p, a1[:, :b], a2[:, :b], balance_tension(z, batch), batch.length_scale,
                 batch.theta_inverse)
         res = balance_residual(z, batch, g)
@@ -210,7 +212,7 @@ def objective_and_grads(p: Params, batch: Batch
 
     res = prior = None
     if batch.use_pinn:
-        z = _sensor_params(p, batch) if batch.use_sensors else None
+        z = _sensor_params(p, batch)
         v = balance_tension(z, batch) * ls
         p2 = v @ w3
         q2 = p2 * s2[:, :b]
