@@ -127,29 +127,39 @@ def batches(jobs: list[Job], max_batch: int) -> list[list[Job]]:
     return out
 
 
-def _train_once(batch: list[Job], runs: list[Run], options: TrainOptions) -> list:
-    """``train_runs`` of the batch, each distinct run trained once.
+def _train_once(batch: list[Job], runs: list[list[Run]], options: TrainOptions) -> list:
+    """``train_runs`` of the batch's networks, each distinct one trained once, each job's
+    networks merged (one network, or several averaged: ``pimbs_learn.ensemble``).
 
     A checked default that falls back trains exactly what Basic trains on the same cell
     (same rows, loss, structure, schedule and initial weights), so where both are in the
     batch the one result serves both; this spares the judge about a quarter of its runs.
     """
+    from pimbs_learn.ensemble import merge
     from pimbs_learn.train import train_runs
 
+    flat = [(j, r) for j, members in zip(batch, runs, strict=True) for r in members]
     first: dict[tuple, int] = {}
-    which = [first.setdefault((j.arm["arm"], j.n, j.seed, r.loss, r.structure), i)
-             for i, (j, r) in enumerate(zip(batch, runs, strict=True))]
+    which = [first.setdefault((j.arm["arm"], j.n, r.seed, r.loss, r.structure), i)
+             for i, (j, r) in enumerate(flat)]
     distinct = sorted(set(which))
-    trained = dict(zip(distinct, train_runs([runs[i] for i in distinct], options),
+    trained = dict(zip(distinct, train_runs([flat[i][1] for i in distinct], options),
                        strict=True))
-    return [trained[i] for i in which]
+    out, at = [], 0
+    for members in runs:
+        out.append(merge([trained[which[at + k]] for k in range(len(members))]))
+        at += len(members)
+    return out
 
 
 def batch_cost(batch: list[Job]) -> float:
-    """A batch's relative training cost: runs × rows (the all-zero row included) × muscles,
-    about what its matmuls grow with."""
+    """A batch's relative training cost: networks × rows (the all-zero row included) ×
+    muscles, about what its matmuls grow with."""
+    from pimbs_learn.ensemble import members_for
+
     first = batch[0]
-    return len(batch) * (first.n + 1) * first.arm["n_muscles"]
+    nets = sum(members_for(j.n) if j.method.members else 1 for j in batch)
+    return nets * (first.n + 1) * first.arm["n_muscles"]
 
 
 def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOptions,
@@ -157,6 +167,7 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
     """Train one stacked batch; its JSON lines."""
     from dataclasses import replace
 
+    from pimbs_learn.ensemble import member_runs, members_for
     from pimbs_learn.selfcheck import BASIC, applies, self_check
 
     runs, checks = [], []
@@ -167,7 +178,7 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
         if check is not None:  # what `pimbs train` then trains: this loss, or Basic
             run = replace(run, loss=run.loss if check.keeps_physics else BASIC,
                           torque_noise=check.torque_noise_rms)
-        runs.append(run)
+        runs.append(member_runs(run, members_for(j.n) if j.method.members else 1))
         checks.append(check)
     opts = replace(options, schedule=batch[0].method.schedule)
     t0 = time.perf_counter()
@@ -186,6 +197,7 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
             "torque_noise_rms": r.torque_noise_rms, "device": options.device,
             "seconds": seconds / len(batch), "batch_seconds": seconds,
             "batch_runs": len(batch),
+            "members": None if r.members is None else len(r.members),
             "self_check": None if check is None else check.metrics()})
     return lines
 

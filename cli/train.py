@@ -65,10 +65,15 @@ JOINT_ANGLE_ROWS = 64
                    "consistent sensor error does not bend the body schema [default: on where "
                    "the balance can carry them: the pinn loss with the automatic weight on "
                    "an ATL-Map without a prior]")
+@click.option("--members", type=click.IntRange(min=1), default=None,
+              help="train this many networks on the same rows from different initial "
+                   "weights and keep their mean, stored as one wider network [default: 2 "
+                   "with at most 7 training samples, where one network's fit depends on "
+                   "its start; else 1]")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
-                   "--lr-schedule constant --hidden 1000 --no-self-check (options given "
-                   "explicitly still apply)")
+                   "--lr-schedule constant --hidden 1000 --no-self-check --members 1 (options "
+                   "given explicitly still apply)")
 @click.option("--robot", default=None,
               help="robot NAME|PATH: the prior, and τ where the recording's tau_gravity is "
                    "null [default: the recording's robot]")
@@ -89,8 +94,8 @@ JOINT_ANGLE_ROWS = 64
 def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, loss: str,
             structure: str, alpha: float | None, weighting: str | None, prior: bool,
             n_train: int | None, eval_path: Path | None, epochs: int, seed: int, lr: float,
-            schedule: str, hidden: int, check: bool, sensors: bool, paper: bool,
-            robot: str | None,
+            schedule: str, hidden: int, check: bool, sensors: bool, members: int | None,
+            paper: bool, robot: str | None,
             device: str, out: Path | None, json_path: Path | None, reference: bool,
             force: bool) -> None:
     """Learn h(θ[, f]) → l from DATA (a recording).
@@ -108,7 +113,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
                  if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT}
         paper_values = {"structure": "mlp", "prior": False, "alpha": DEFAULT_PAPER_ALPHA,
                         "schedule": "constant", "hidden": HIDDEN, "check": False,
-                        "sensors": False}
+                        "sensors": False, "members": 1}
         values = {k: v for k, v in paper_values.items() if k not in given}
         structure = values.get("structure", structure)
         prior = values.get("prior", prior)
@@ -117,6 +122,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         hidden = values.get("hidden", hidden)
         check = values.get("check", check)
         sensors = values.get("sensors", sensors)
+        members = values.get("members", members)
     # refuse an output that exists or cannot be written before minutes of training
     if out is not None and not (out.is_dir() and not any(out.iterdir())):  # empty dir: ok
         check_output(out, force=force, what="model")
@@ -125,6 +131,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     import torch
     from rich.console import Console
 
+    from pimbs_learn.ensemble import members_for
     from pimbs_learn.io import save_model
     from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
     from pimbs_learn.reference import train_reference
@@ -151,8 +158,12 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     if sensors is None and run.sensor_terms_apply:
         run = replace(run, loss=replace(run.loss, sensors=True))
     torch.manual_seed(seed)
+    if reference and (members or 1) > 1:
+        raise click.UsageError("--reference trains one network: leave out --members")
+    if members is None:
+        members = 1 if reference else members_for(run.train.n_samples)
     options = TrainOptions(epochs=epochs, lr=lr, device=device, hidden=hidden,
-                           schedule=schedule)
+                           schedule=schedule, members=members)
     checked = check and not reference and applies(run)
     trainer = train_reference if reference else (train_checked if checked else train)
     weight = (f"automatic α ×{alpha:g}" if weighting == "auto" else f"α={alpha:g}")
@@ -170,6 +181,10 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         result = trainer(run, options, progress=update)
     if result.self_check is not None:
         console.print(result.self_check.line(run.loss.name), markup=False)
+    if result.members is not None:
+        each = ", ".join(f"{m['eval_loss']:.4g}" for m in result.metrics()["members"])
+        console.print(f"{len(result.members)} networks from different initial weights, "
+                      f"averaged into one (L_eval each: {each})", markup=False)
     if result.sensor_terms is not None:
         from pimbs_learn.sensor_terms import line
 

@@ -7,7 +7,8 @@ network, or ``se``, series-elastic), the loss terms (``basic``, ``basic+const``,
 learning-rate schedule (default ``constant``, the paper's Adam); the flag ``check`` runs the
 self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic, and
 ``sensors`` fits loadcell and gravity errors in the torque balance
-(:mod:`pimbs_learn.sensor_terms`).
+(:mod:`pimbs_learn.sensor_terms`), and ``members`` averages as many networks as
+``pimbs train`` does for the run's training-set size (:mod:`pimbs_learn.ensemble`).
 Examples: ``se:basic+const+pinn@auto~exp!check`` (the default of ``pimbs train`` without a
 prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 ``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
@@ -33,6 +34,7 @@ class Method:
     loss: LossConfig
     schedule: str
     check: bool = False  # the self-check decides between this loss and Basic
+    members: bool = False  # networks averaged by the training-set size rule
 
 
 def parse_method(spec: str) -> Method:
@@ -40,8 +42,8 @@ def parse_method(spec: str) -> Method:
     what is wrong."""
     text, _, flag_text = spec.partition("!")
     flags = set(flag_text.split(",")) - {""}
-    if flags - {"check", "sensors"}:
-        raise ValueError(f"method '{spec}': flags are 'check' and 'sensors', "
+    if flags - {"check", "sensors", "members"}:
+        raise ValueError(f"method '{spec}': flags are 'check', 'sensors' and 'members', "
                          f"not '{flag_text}'")
     body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
@@ -62,4 +64,5 @@ def parse_method(spec: str) -> Method:
             config = LossConfig.parse(loss, float(weight or 1e-5), sensors=sensors)
     except ValueError as e:
         raise ValueError(f"method '{spec}': {e}") from None
-    return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags)
+    return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags,
+                  members="members" in flags)

@@ -121,6 +121,8 @@ class TrainOptions:
     curve_every: int = 0  # record L_eval every k epochs for plots (0: no curve)
     dtype: torch.dtype = torch.float32
     schedule: str = "constant"  # learning rate over the run, one of SCHEDULES
+    # networks averaged into the model (pimbs_learn.ensemble); `train` trains them stacked
+    members: int = 1
 
     def lr_at(self, epoch: int) -> float:
         """The learning rate of an epoch under the schedule."""
@@ -169,6 +171,9 @@ class TrainResult:
     asked_loss: LossConfig | None = None
     # the loadcell and gravity corrections the torque balance fitted (pimbs_learn.sensor_terms)
     sensor_terms: dict[str, list[float]] | None = None
+    # the networks averaged into this one (pimbs_learn.ensemble): seed, loss, best epoch and
+    # L_eval (m²) of each; None for a single network
+    members: list[dict[str, Any]] | None = None
 
     def metrics(self) -> dict[str, Any]:
         return {
@@ -193,6 +198,8 @@ class TrainResult:
             "prior": self.run.prior_robot,
             "map": self.run.map_name,
             "seed": self.run.seed,
+            "members": None if self.members is None else [
+                {**m, "eval_loss": m["eval_loss"] * REPORT_SCALE} for m in self.members],
         }
 
 

@@ -266,5 +266,11 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
 
 def train(run: Run, options: TrainOptions | None = None,
           progress: Progress | None = None) -> TrainResult:
-    """Train one run (see :func:`train_runs`)."""
+    """Train one run (see :func:`train_runs`); with ``options.members`` > 1 as that many
+    networks from different initial weights, stacked, merged into one
+    (:mod:`pimbs_learn.ensemble`)."""
+    if options is not None and options.members > 1:
+        from pimbs_learn.ensemble import member_runs, train_members
+
+        return train_members(member_runs(run, options.members), options, progress)
     return train_runs([run], options, progress)[0]

@@ -141,6 +141,35 @@ def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
     tr, ev = split(_samples(1), 8, 0)
     fell_back = Run(tr, ev, basic.loss, 0, True, basic.structure)  # what the check trains
     other = Run(*split(_samples(1), 8, 1), basic.loss, 1, True, basic.structure)
-    results = runner._train_once(jobs, [fell_back, fell_back, other], OPTIONS)
+    results = runner._train_once(jobs, [[fell_back], [fell_back], [other]], OPTIONS)
     assert trained == [2]
     assert results[0].eval_loss == results[1].eval_loss != results[2].eval_loss
+
+
+def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
+    """With the ``members`` flag a run of few samples is the mean of two networks: each
+    distinct network is trained once in the batch, a fallen-back default shares Basic's two,
+    and the line's L_eval is the merged network's."""
+    runner = _runner()
+    import pimbs_learn.train as train_module
+    from pimbs_learn.ensemble import member_runs
+
+    trained: list[int] = []
+
+    def counting(runs, options):
+        trained.append(len(runs))
+        return train_runs(runs, options)
+
+    monkeypatch.setattr(train_module, "train_runs", counting)
+    arm = {"arm": "arm001", "dof": 2, "n_muscles": 4}
+    checked = parse_method("se:basic+const+pinn@auto~exp!check,members")
+    basic = parse_method("se:basic~exp!members")
+    assert basic.members and not parse_method("se:basic~exp").members
+    jobs = [runner.Job(arm, 5, 0, checked), runner.Job(arm, 5, 0, basic)]
+    fell_back = Run(*split(_samples(1), 5, 0), basic.loss, 0, True, basic.structure)
+    pair = member_runs(fell_back, 2)
+    results = runner._train_once(jobs, [pair, pair], OPTIONS)
+    assert trained == [2]
+    assert len(results[1].members) == 2
+    assert results[0].eval_loss == results[1].eval_loss
+    assert results[1].eval_loss not in {m["eval_loss"] for m in results[1].members}

@@ -1,0 +1,116 @@
+"""A body schema from a few samples as the mean of two networks, stored as one network.
+
+Why: from 5 samples nothing in the rows tells whether the physics terms pay. On a
+population of drawn arms (docs/learning-notebook.md §19) the physics run won on most cells
+and lost on some by up to 4×, and neither the Gaussian process's check nor a K-fold check
+with the networks themselves told which. So with that few samples the schema is the mean
+of the network the loss asks for and a Basic network (no physics terms) from other initial
+weights: where the physics run goes wrong the mean loses half as much, where it is right
+the mean keeps most of its gain. Basic itself is then the mean of two Basic networks, so
+the two stay the same size and the physics remains the only difference.
+
+Two MLPs of width H averaged are exactly one MLP of width k·H: their first layers stacked,
+their second layers on a block diagonal, their output layers side by side divided by k (the
+series-elastic coefficients and output biases averaged). So the result is an ordinary
+trained model: saved, loaded, exported and differentiated as any other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from pimbs_learn.run import Run, TrainOptions, TrainResult
+from pimbs_learn.selfcheck import BASIC
+
+# Runs of at most this many training samples train two networks (the N = 5 regime of the
+# self-check's nearest-size rule; notebook §19).
+MEMBERS_UP_TO = 7
+MEMBERS = 2
+SEED_STEP = 1000  # member i starts from the initial weights of seed + i·SEED_STEP
+
+
+def members_for(n_train: int) -> int:
+    """How many networks a run of ``n_train`` training samples averages."""
+    return MEMBERS if n_train <= MEMBERS_UP_TO else 1
+
+
+def member_runs(run: Run, k: int) -> list[Run]:
+    """The run itself, and k − 1 Basic runs on the same rows from other initial weights.
+
+    Beside a run with physics terms the others are Basic: with this few samples nothing in
+    the rows tells whether the physics pays (§19), so the mean keeps half of it. Beside a
+    Basic run they are Basic too, so Basic is the same size.
+    """
+    return [run] + [replace(run, seed=run.seed + i * SEED_STEP, loss=BASIC)
+                    for i in range(1, k)]
+
+
+def merge_params(params: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One network's weights that compute the mean of the given networks' lengths.
+
+    Weights as trained (w (out, in), biases (1, out)); keys outside the network (a
+    geometric prior's tensors) are the same in every member and kept from the first.
+    """
+    k = len(params)
+    if k == 1:
+        return dict(params[0])
+    out = dict(params[0])
+    out["w1"] = np.concatenate([p["w1"] for p in params], axis=0)
+    out["b1"] = np.concatenate([p["b1"] for p in params], axis=1)
+    h = [p["w2"].shape[0] for p in params]
+    w2 = np.zeros((sum(h), sum(h)), dtype=params[0]["w2"].dtype)
+    at = np.cumsum([0] + h)
+    for i, p in enumerate(params):
+        w2[at[i]:at[i + 1], at[i]:at[i + 1]] = p["w2"]
+    out["w2"] = w2
+    out["b2"] = np.concatenate([p["b2"] for p in params], axis=1)
+    out["w3"] = np.concatenate([p["w3"] for p in params], axis=1) / np.float32(k)
+    out["b3"] = np.mean([p["b3"] for p in params], axis=0).astype(params[0]["b3"].dtype)
+    if "c" in out:
+        out["c"] = np.mean([p["c"] for p in params], axis=0).astype(params[0]["c"].dtype)
+    return out
+
+
+def _mean_terms(terms: list[dict[str, list[float]] | None]) -> dict[str, list[float]] | None:
+    if any(t is None for t in terms):
+        return None
+    return {key: np.mean([t[key] for t in terms], axis=0).tolist()  # type: ignore[index]
+            for key in terms[0]}  # type: ignore[union-attr]
+
+
+def merge(results: list[TrainResult]) -> TrainResult:
+    """The mean of ``results`` (one run's members, same rows) as one TrainResult.
+
+    Its losses are the merged network's own (training L_basic and L_eval recomputed);
+    each member's seed, best epoch and L_eval are kept in ``members`` for the metrics.
+    """
+    from pimbs_learn.io import schema_from_result
+
+    first = results[0]
+    if len(results) == 1:
+        return first
+    merged = replace(first, params=merge_params([r.params for r in results]),
+                     sensor_terms=_mean_terms([r.sensor_terms for r in results]),
+                     seconds=max(r.seconds for r in results),
+                     curve_epochs=np.zeros(0, int), curve_eval=np.zeros(0),
+                     curve_train=np.zeros(0),
+                     members=[{"seed": r.run.seed, "loss": r.run.loss.name,
+                               "best_epoch": r.best_epoch, "eval_loss": r.eval_loss}
+                              for r in results])
+    schema = schema_from_result(merged)
+
+    def mse(samples) -> float:
+        pred = schema.length(samples.theta, samples.tension)
+        return float(np.mean((pred - samples.length) ** 2))
+
+    return replace(merged, train_loss=mse(first.run.train), eval_loss=mse(first.run.eval))
+
+
+def train_members(runs: list[Run], options: TrainOptions | None = None,
+                  progress=None) -> TrainResult:
+    """Train the members of one run together (one stacked batch) and merge them."""
+    from pimbs_learn.train import train_runs
+
+    return merge(train_runs(runs, options, progress))
