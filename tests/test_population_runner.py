@@ -120,10 +120,8 @@ def test_population_runner_stacks_one_shape_and_resumes(tmp_path, capsys):
     assert "viapoint on ours" in text and "N=5" in text and "2 arms" in text
 
 
-def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
-    """A checked default that falls back trains what Basic trains on the same cell: the batch
-    trains it once and both lines carry the same result."""
-    runner = _runner()
+def _count_training(monkeypatch) -> list[int]:
+    """The number of networks in each ``train_runs`` call from now on."""
     import pimbs_learn.train as train_module
 
     trained: list[int] = []
@@ -133,6 +131,14 @@ def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
         return train_runs(runs, options)
 
     monkeypatch.setattr(train_module, "train_runs", counting)
+    return trained
+
+
+def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
+    """A checked default that falls back trains what Basic trains on the same cell: the batch
+    trains it once and both lines carry the same result."""
+    runner = _runner()
+    trained = _count_training(monkeypatch)
     arm = {"arm": "arm001", "dof": 2, "n_muscles": 4}
     checked = parse_method("se:basic+const+pinn@auto~exp!check")
     basic = parse_method("se:basic~exp")
@@ -147,29 +153,24 @@ def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
 
 
 def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
-    """With the ``members`` flag a run of few samples is the mean of two networks: each
-    distinct network is trained once in the batch, a fallen-back default shares Basic's two,
-    and the line's L_eval is the merged network's."""
-    runner = _runner()
-    import pimbs_learn.train as train_module
+    """With the ``members`` flag a run of few samples is the mean of its network and a Basic
+    one: each distinct network is trained once in the batch (the default's Basic network is
+    Basic's second), and the line's L_eval is the merged network's."""
     from pimbs_learn.ensemble import member_runs
 
-    trained: list[int] = []
-
-    def counting(runs, options):
-        trained.append(len(runs))
-        return train_runs(runs, options)
-
-    monkeypatch.setattr(train_module, "train_runs", counting)
+    runner = _runner()
+    trained = _count_training(monkeypatch)
     arm = {"arm": "arm001", "dof": 2, "n_muscles": 4}
-    checked = parse_method("se:basic+const+pinn@auto~exp!check,members")
+    default = parse_method("se:basic+const+pinn@auto~exp!sensors,members")
     basic = parse_method("se:basic~exp!members")
     assert basic.members and not parse_method("se:basic~exp").members
-    jobs = [runner.Job(arm, 5, 0, checked), runner.Job(arm, 5, 0, basic)]
-    fell_back = Run(*split(_samples(1), 5, 0), basic.loss, 0, True, basic.structure)
-    pair = member_runs(fell_back, 2)
-    results = runner._train_once(jobs, [pair, pair], OPTIONS)
-    assert trained == [2]
-    assert len(results[1].members) == 2
-    assert results[0].eval_loss == results[1].eval_loss
+    jobs = [runner.Job(arm, 5, 0, default), runner.Job(arm, 5, 0, basic)]
+    rows = split(_samples(1), 5, 0)
+    physics = member_runs(Run(*rows, default.loss, 0, True, default.structure), 2)
+    basics = member_runs(Run(*rows, basic.loss, 0, True, basic.structure), 2)
+    results = runner._train_once(jobs, [physics, basics], OPTIONS)
+    assert trained == [3]
+    assert [m["loss"] for m in results[0].members] == ["basic+const+pinn", "basic"]
+    assert results[0].members[1]["eval_loss"] == results[1].members[1]["eval_loss"]
+    assert results[0].eval_loss != results[1].eval_loss
     assert results[1].eval_loss not in {m["eval_loss"] for m in results[1].members}
