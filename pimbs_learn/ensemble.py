@@ -21,8 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from pimbs_learn.run import Run, TrainOptions, TrainResult
-from pimbs_learn.selfcheck import BASIC
+from pimbs_learn.losses import BASIC
+from pimbs_learn.run import Run, TrainResult
 
 # Runs of at most this many training samples train two networks (the N = 5 regime of the
 # self-check's nearest-size rule; notebook §19).
@@ -106,11 +106,3 @@ def merge(results: list[TrainResult]) -> TrainResult:
         return float(np.mean((pred - samples.length) ** 2))
 
     return replace(merged, train_loss=mse(first.run.train), eval_loss=mse(first.run.eval))
-
-
-def train_members(runs: list[Run], options: TrainOptions | None = None,
-                  progress=None) -> TrainResult:
-    """Train the members of one run together (one stacked batch) and merge them."""
-    from pimbs_learn.train import train_runs
-
-    return merge(train_runs(runs, options, progress))

@@ -71,6 +71,10 @@ class LossConfig:
         return self.alpha if self.pinn else 0.0
 
 
+# the paper's Basic: lengths only, no physics terms
+BASIC = LossConfig(const=False, pinn=False)
+
+
 def basic_loss(l_pred: torch.Tensor, l_data: torch.Tensor) -> torch.Tensor:
     """L_basic per run: mean over the last two axes (samples, muscles)."""
     return ((l_pred - l_data) ** 2).mean(dim=(-2, -1))

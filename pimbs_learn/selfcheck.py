@@ -24,11 +24,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pimbs_learn.losses import LossConfig
+from pimbs_learn.losses import BASIC
 from pimbs_learn.noise import NoiseEstimate, noise_of
 from pimbs_learn.run import Progress, Run, TrainOptions, TrainResult
 
-BASIC = LossConfig(const=False, pinn=False)
 # The physics is kept when the torques bring the pooled leave-one-out length error below
 # this share of the error without them. One threshold per training-set size, chosen on the
 # development half of a population of drawn arms (docs/learning-notebook.md §10): the

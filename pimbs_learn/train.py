@@ -270,7 +270,7 @@ def train(run: Run, options: TrainOptions | None = None,
     networks from different initial weights, stacked, merged into one
     (:mod:`pimbs_learn.ensemble`)."""
     if options is not None and options.members > 1:
-        from pimbs_learn.ensemble import member_runs, train_members
+        from pimbs_learn.ensemble import member_runs, merge
 
-        return train_members(member_runs(run, options.members), options, progress)
+        return merge(train_runs(member_runs(run, options.members), options, progress))
     return train_runs([run], options, progress)[0]
