@@ -74,10 +74,11 @@ def merge_params(params: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 
 def _mean_terms(terms: list[dict[str, list[float]] | None]) -> dict[str, list[float]] | None:
-    if any(t is None for t in terms):
+    """The sensor terms of the members that fitted them (a Basic member fits none)."""
+    fitted = [t for t in terms if t is not None]
+    if not fitted:
         return None
-    return {key: np.mean([t[key] for t in terms], axis=0).tolist()  # type: ignore[index]
-            for key in terms[0]}  # type: ignore[union-attr]
+    return {key: np.mean([t[key] for t in fitted], axis=0).tolist() for key in fitted[0]}
 
 
 def merge(results: list[TrainResult]) -> TrainResult:

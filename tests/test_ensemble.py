@@ -92,6 +92,8 @@ def test_pimbs_train_averages_two_networks_at_few_samples_only(tmp_path) -> None
     few = trained("--n-train", "5")
     assert few["architecture"]["layers"][1] == 16
     assert [m["loss"] for m in few["metrics"]["members"]][1] == "basic"
+    # without a prior the physics network fits sensor terms: still reported beside Basic's none
+    assert trained("--n-train", "5", "--no-prior")["metrics"]["sensor_terms"] is not None
     assert trained("--n-train", "10")["metrics"]["members"] is None
     assert trained("--n-train", "5", "--paper", "--hidden", "8")["metrics"]["members"] is None
     assert trained("--n-train", "10", "--members", "2")["architecture"]["layers"][1] == 16
