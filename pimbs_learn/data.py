@@ -20,9 +20,7 @@ class LearnError(ValueError):
 
 @dataclass(frozen=True)
 class Samples:
-    """Static samples: theta (S,N) rad, tension (S,M) N, length (S,M) m, tau (S,N) N·m,
-    and each muscle's approach into the pose (S,M) +1/−1/0 where the recording has it (the
-    torque balance's friction term reads it).
+    """Static samples: theta (S,N) rad, tension (S,M) N, length (S,M) m, tau (S,N) N·m.
 
     tau holds NaN where the recording had no gravity torque and none was computed.
     """
@@ -36,7 +34,6 @@ class Samples:
     robot: str | None = None
     sha256: str | None = None
     path: str | None = None
-    approach: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         s, n = self.theta.shape
@@ -49,9 +46,6 @@ class Samples:
         if len(self.joints) != n or len(self.muscles) != m:
             raise LearnError(f"{n} joint / {m} muscle columns but names "
                              f"{list(self.joints)} / {list(self.muscles)}")
-        if self.approach is not None and self.approach.shape != (s, m):
-            raise LearnError(f"approach has shape {self.approach.shape}, not (samples, "
-                             f"muscles) {(s, m)}")
 
     @property
     def n_samples(self) -> int:
@@ -63,8 +57,7 @@ class Samples:
 
     def take(self, index: np.ndarray) -> Samples:
         return replace(self, theta=self.theta[index], tension=self.tension[index],
-                       length=self.length[index], tau=self.tau[index],
-                       approach=None if self.approach is None else self.approach[index])
+                       length=self.length[index], tau=self.tau[index])
 
 
 def file_sha256(path: str | Path) -> str:
@@ -92,7 +85,7 @@ def load_samples(path: str | Path) -> Samples:
     return Samples(theta=rec.theta.astype(f64), tension=rec.tension.astype(f64),
                    length=rec.length.astype(f64), tau=rec.tau_gravity.astype(f64),
                    joints=tuple(rec.joints), muscles=tuple(rec.muscles), robot=rec.robot,
-                   sha256=file_sha256(p), path=str(p), approach=rec.approach.astype(f64))
+                   sha256=file_sha256(p), path=str(p))
 
 
 def load_robot(robot: str, samples: Samples):

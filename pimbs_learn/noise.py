@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pimbs_learn import sensor_terms
 from pimbs_learn.graph import elastic_basis
 from pimbs_learn.model import Scaling
 
@@ -161,14 +160,14 @@ def _maximise_evidence(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: tor
 
 def _sensor_columns(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.Tensor,
                     y: torch.Tensor, b: torch.Tensor, base: torch.Tensor,
-                    is_len: torch.Tensor, tension_cols: np.ndarray) -> torch.Tensor:
-    """(observations, 3M+N) how each sensor term of :mod:`pimbs_learn.sensor_terms` moves the
-    scaled torque observations, with a unit prior on each (``tension_cols``: the loadcell
-    errors' :func:`~pimbs_learn.sensor_terms.columns`, (S, M, 3)). The balance
-    Gᵀf'/k + τ = 0 gives, to first order in the z, τ = −Gᵀf − Gᵀ(f' − f) − (k − 1)·τ:
-    linear in the z for a given G, so G is plugged in at its posterior mean under the fit
-    without them (the error of that is second order: an unknown G times an error already
-    small)."""
+                    is_len: torch.Tensor, f_s: np.ndarray) -> torch.Tensor:
+    """(observations, 2M+N) how each sensor term of :mod:`pimbs_learn.sensor_terms` moves the
+    scaled torque observations, with a unit prior on each. The balance Gᵀf'/k + τ = 0 gives,
+    to first order in the z, τ = −Gᵀf − Gᵀ(f' − f) − (k − 1)·τ: linear in the z for a given
+    G, so G is plugged in at its posterior mean under the fit without them (the error of
+    that is second order: an unknown G times an error already small)."""
+    from pimbs_learn import sensor_terms
+
     amp, ell, sl, st = np.exp(np.maximum(z, low)).tolist()
     (k, kd, kdd), _ = _kernel_blocks(xt, float(ell))
     s, n = kd.shape[:2]
@@ -183,32 +182,28 @@ def _sensor_columns(z: np.ndarray, low: np.ndarray, xt: torch.Tensor, ft: torch.
     coef = (b.T @ alpha) * _BASIS_PRIOR  # posterior mean of offsets, slopes, springs
     slope = coef.reshape(m, -1)[:, 1:1 + n]  # (M, N)
     grad = dg + slope[None]  # (S, M, N) ∂l̃/∂x at each sample
-    c = len(sensor_terms.TENSION_KEYS)
-    rows = torch.zeros(len(y), c * m + n, dtype=y.dtype)
+    rows = torch.zeros(len(y), 2 * m + n, dtype=y.dtype)
     torque_rows = slice(s * m, None)
-    cols = torch.as_tensor(tension_cols, dtype=y.dtype)
-    for i in range(c):
-        moved = -cols[:, :, i, None] * grad  # (S, M, N): τ moved per unit z of each muscle
-        rows[torque_rows, i * m:(i + 1) * m] = moved.permute(0, 2, 1).reshape(s * n, m)
+    gain = -sensor_terms.GAIN_SD * ft[:, :, None] * grad  # (S, M, N)
+    offset = -sensor_terms.OFFSET_SD * torch.as_tensor(f_s)[None, :, None] * grad
+    rows[torque_rows, :m] = gain.permute(0, 2, 1).reshape(s * n, m)
+    rows[torque_rows, m:2 * m] = offset.permute(0, 2, 1).reshape(s * n, m)
     y_t = y[s * m:].reshape(s, n)
     gravity = -sensor_terms.GRAVITY_SD * torch.diag_embed(y_t)  # (S, N, N)
-    rows[torque_rows, c * m:] = gravity.reshape(s * n, n)
+    rows[torque_rows, 2 * m:] = gravity.reshape(s * n, n)
     return rows
 
 
 def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
-                   tau: np.ndarray, seed: int = 0, sensors: bool = False,
-                   approach: np.ndarray | None = None) -> NoiseEstimate:
+                   tau: np.ndarray, seed: int = 0, sensors: bool = False) -> NoiseEstimate:
     """Noise levels of lengths and torques that maximise the evidence (see module doc);
     with ``sensors``, the torque balance may also carry the loadcell and gravity errors of
-    :mod:`pimbs_learn.sensor_terms` (so a consistent error there is not taken for noise),
-    the tendon friction read from ``approach`` where given."""
+    :mod:`pimbs_learn.sensor_terms` (so a consistent error there is not taken for noise)."""
     rng = np.random.default_rng(seed)
     most = max(3, MAX_OBSERVATIONS // (theta.shape[1] + length.shape[1]))
     if theta.shape[0] > most:
         keep = np.sort(rng.permutation(theta.shape[0])[:most])
         theta, tension, length, tau = theta[keep], tension[keep], length[keep], tau[keep]
-        approach = None if approach is None else approach[keep]
     s, n = theta.shape
     m = length.shape[1]
     scale = Scaling.from_data(theta, tension, length)  # the network's own scales
@@ -230,8 +225,7 @@ def estimate_noise(theta: np.ndarray, tension: np.ndarray, length: np.ndarray,
     low = np.array([-12.0, -5.0, math.log(1e-7), math.log(1e-7 * tau_rms)])
     z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
     if sensors:
-        tension_cols = sensor_terms.columns(tension, f_s, approach)
-        cols = _sensor_columns(z, low, xt, ft, y, b, base, is_len, tension_cols)
+        cols = _sensor_columns(z, low, xt, ft, y, b, base, is_len, f_s)
         base = base + cols @ cols.T
         z = _maximise_evidence(z, low, xt, ft, y, base, is_len)
     final, _ = _nll_and_grad(z, low, xt, ft, y, base, is_len, with_grad=False)
@@ -274,7 +268,6 @@ def noise_of(samples, seed: int = 0, sensors: bool = False) -> NoiseEstimate | N
     automatic weight's floor and the self-check both read this one fit."""
     try:
         return estimate_noise(samples.theta, samples.tension, samples.length, samples.tau,
-                              seed=seed, sensors=sensors,
-                              approach=getattr(samples, "approach", None))
+                              seed=seed, sensors=sensors)
     except torch.linalg.LinAlgError:
         return None

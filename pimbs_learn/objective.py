@@ -21,8 +21,7 @@ offsets) from a right one, and α_eff falls by itself only through that floor.
 least squares).
 
 Sensor terms (``sensors``, :mod:`pimbs_learn.sensor_terms`): the torque balance uses the
-tensions and gravity torques corrected by fitted loadcell, tendon-friction and gravity
-errors, whose unit
+tensions and gravity torques corrected by fitted loadcell and gravity errors, whose unit
 Gaussian prior enters the same profiled likelihood: its gradient, rescaled like the rest,
 is (2·max(mse_l, floor)/(B·M))·z.
 """
@@ -56,8 +55,7 @@ class Batch:
     length_floor: torch.Tensor | None = None  # (R,) m², floor of mse_l (auto)
     torque_floor: torch.Tensor | None = None  # (R,) N²·m², floor of mse_τ (auto)
     sensors: torch.Tensor | None = None  # (R,) 1 where the torque balance has sensor terms
-    # (R, B, M, 3) how each loadcell error moves each tension (sensor_terms.columns)
-    tension_columns: torch.Tensor | None = None
+    tension_scale: torch.Tensor | None = None  # (R, 1, M) N, the offsets' unit (sensors)
 
     # cached: on a GPU each evaluation would be a host sync, once per epoch
     @cached_property
@@ -124,8 +122,8 @@ def balance_tension(z: Params | None, batch: Batch) -> torch.Tensor:
     (:func:`_sensor_params`; None without sensor terms)."""
     if z is None:
         return batch.tension
-    assert batch.tension_columns is not None
-    return sensor_terms.tension(z, batch.tension, batch.tension_columns)
+    assert batch.tension_scale is not None
+    return sensor_terms.tension(z, batch.tension, batch.tension_scale)
 
 
 def balance_residual(z: Params | None, batch: Batch, g: torch.Tensor) -> torch.Tensor:
@@ -232,11 +230,11 @@ def objective_and_grads(p: Params, batch: Batch
         g_w3 = g_w3 + v.mT @ dp2
         da2[:, :b] -= 2 * a2[:, :b] * (dq2 * p2)
         if z is not None:
-            assert batch.sensors is not None and batch.tension_columns is not None
+            assert batch.sensors is not None and batch.tension_scale is not None
             prior = sensor_terms.prior_sum(z)
             mask = batch.sensors.view(r, 1, 1) * sensor_terms.STEP_GAIN
             sensor_grads = sensor_terms.grads(
-                z, (dp2 @ w3.mT) * ls, dres, g, batch.tension_columns,
+                z, (dp2 @ w3.mT) * ls, dres, g, batch.tension, batch.tension_scale,
                 sensor_prior_weight(batch, lb))
 
     dz2 = da2 * s2

@@ -27,7 +27,7 @@ from pimbs_learn import sensor_terms
 from pimbs_learn.adam import FusedAdam
 from pimbs_learn.data import LearnError
 from pimbs_learn.graph import ELASTIC_BASIS, SERIES_ELASTIC, elastic_basis
-from pimbs_learn.model import Params, Scaling, hidden_layers, init_params, output_length
+from pimbs_learn.model import Params, hidden_layers, init_params, output_length
 from pimbs_learn.noise import noise_of
 from pimbs_learn.objective import ELASTIC_GAIN, Batch, elastic_length, objective_and_grads
 from pimbs_learn.prior import PREFIX as PRIOR_PREFIX
@@ -94,11 +94,6 @@ def _check_stackable(runs: list[Run]) -> None:
             raise LearnError("runs trained together need the same n_train, map, structure and "
                              "numbers of joints and muscles; train the others in a separate "
                              "batch")
-
-
-def _tension_scale(s: Scaling, r: Run) -> np.ndarray:
-    """(1, M) N: the unit of the loadcell offsets and drifts (the network's tension scale)."""
-    return s.tension[None] if s.tension is not None else np.ones((1, len(r.train.muscles)))
 
 
 def _padded(arrays: list[np.ndarray]) -> np.ndarray:
@@ -194,9 +189,9 @@ def train_runs(runs: list[Run], options: TrainOptions | None = None,
                                    for r in runs], dtype=dt, device=dev),
         torque_floor=torch.tensor([f for f, _ in floors], dtype=dt, device=dev),
         sensors=torch.tensor([r.loss.sensors for r in runs], dtype=dt, device=dev),
-        tension_columns=_stack([sensor_terms.columns(
-            r.train.tension, _tension_scale(s, r), r.train.approach)
-            for s, r in zip(scalings, runs, strict=True)], dt, dev))
+        tension_scale=_stack([s.tension[None] if s.tension is not None
+                              else np.ones((1, len(r.train.muscles)))
+                              for s, r in zip(scalings, runs, strict=True)], dt, dev))
     x_ev = inputs("eval")
     phi_ev = basis("eval")
     l_ev = as_tensor(_padded([r.eval.length for r in runs]), dt, dev)
