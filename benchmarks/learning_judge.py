@@ -51,7 +51,7 @@ HALVES = {"first": [f"arm{s:03d}" for s in range(41, 80, 2)],
           "second": [f"arm{s:03d}" for s in range(40, 79, 2)],
           "third": [f"arm{s:03d}" for s in range(80, 119, 2)],
           "fourth": [f"arm{s:03d}" for s in range(120, 159, 2)]}
-DEFAULT = "se:basic+const+pinn@auto~exp!check,sensors,members"
+DEFAULT = "se:basic+const+pinn@auto~exp!check,sensors,members,home"
 BASIC = "se:basic~exp!members"
 PAPER_BASIC = "mlp:basic"  # the paper's network and constant-lr Adam, fixed α unused
 PAPER_WIDTH = 1000

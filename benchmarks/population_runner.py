@@ -173,7 +173,7 @@ def train_batch(batch: list[Job], samples: dict[str, Samples], options: TrainOpt
     runs, checks = [], []
     for j in batch:
         train, evaluate = split(samples[j.arm["arm"]], j.n, j.seed, max_eval)
-        run = Run(train, evaluate, j.method.loss, j.seed, True, j.method.structure)
+        run = Run(train, evaluate, j.method.loss_for(j.n), j.seed, True, j.method.structure)
         check = self_check(run) if j.method.check and applies(run) else None
         if check is not None:  # what `pimbs train` then trains: this loss, or Basic
             run = replace(run, loss=run.loss if check.keeps_physics else BASIC,

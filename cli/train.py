@@ -25,7 +25,8 @@ JOINT_ANGLE_ROWS = 64
               show_default=True, help="atl: (θ, f) → l; al: θ → l")
 @click.option("--loss", type=click.Choice(LOSSES), default=DEFAULT_LOSS, show_default=True,
               help="the paper's terms: length error (basic), h(0, 0) = 0 (const), the torque "
-                   "balance -Gᵀf = τ (pinn)")
+                   "balance -Gᵀf = τ (pinn); the default leaves const out beyond 20 "
+                   "training samples where no prior is used (give --loss to keep it)")
 @click.option("--structure", type=click.Choice(["series-elastic", "mlp"]),
               default="series-elastic", show_default=True,
               help="series-elastic: l = g(θ) + e(f) (ATL-Map); mlp: the paper's network")
@@ -133,7 +134,7 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
 
     from pimbs_learn.ensemble import members_for
     from pimbs_learn.io import save_model
-    from pimbs_learn.losses import DEFAULT_ALPHA, LossConfig
+    from pimbs_learn.losses import DEFAULT_ALPHA, HOME_POSE_UP_TO, LossConfig, sized
     from pimbs_learn.reference import train_reference
     from pimbs_learn.run import TrainOptions
     from pimbs_learn.selfcheck import applies, train_checked
@@ -157,6 +158,16 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
                       note=lambda s: console.print(f"note: {s}", markup=False))
     if sensors is None and run.sensor_terms_apply:
         run = replace(run, loss=replace(run.loss, sensors=True))
+    loss_given = ctx.get_parameter_source("loss") != click.core.ParameterSource.DEFAULT
+    if not (loss_given or paper or reference or run.prior is not None):
+        home = sized(run.loss, run.train.n_samples)
+        if home != run.loss:
+            run = replace(run, loss=home)
+            console.print(f"note: L_const (the home pose at zero tension) left out at "
+                          f"{run.train.n_samples} training samples (kept up to "
+                          f"{HOME_POSE_UP_TO}): the rows carry the lengths near home, and a "
+                          f"loadcell zero that has moved would make the home pose contradict "
+                          f"them; --loss {loss} keeps it", markup=False)
     torch.manual_seed(seed)
     if reference and (members or 1) > 1:
         raise click.UsageError("--reference trains one network: leave out --members")

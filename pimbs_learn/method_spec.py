@@ -7,8 +7,10 @@ network, or ``se``, series-elastic), the loss terms (``basic``, ``basic+const``,
 learning-rate schedule (default ``constant``, the paper's Adam); the flag ``check`` runs the
 self-check first (:mod:`pimbs_learn.selfcheck`), which may replace the loss by Basic, and
 ``sensors`` fits loadcell and gravity errors in the torque balance
-(:mod:`pimbs_learn.sensor_terms`), and ``members`` averages as many networks as
-``pimbs train`` does for the run's training-set size (:mod:`pimbs_learn.ensemble`).
+(:mod:`pimbs_learn.sensor_terms`), ``members`` averages as many networks as
+``pimbs train`` does for the run's training-set size (:mod:`pimbs_learn.ensemble`), and
+``home`` keeps L_const only up to the training-set size the default keeps it
+(:func:`pimbs_learn.losses.sized`).
 Examples: ``se:basic+const+pinn@auto~exp!check`` (the default of ``pimbs train`` without a
 prior), ``se:basic+const+pinn@auto~exp`` (the same without its self-check),
 ``se:basic~exp`` (Basic with that structure and schedule), ``mlp:basic`` (the paper's Basic).
@@ -19,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pimbs_learn.graph import MLP, SERIES_ELASTIC
-from pimbs_learn.losses import LossConfig
+from pimbs_learn.losses import LossConfig, sized
 from pimbs_learn.run import SCHEDULES
 
 STRUCTURE_NAMES = {"mlp": MLP, "se": SERIES_ELASTIC}
@@ -35,6 +37,11 @@ class Method:
     schedule: str
     check: bool = False  # the self-check decides between this loss and Basic
     members: bool = False  # networks averaged by the training-set size rule
+    home: bool = False  # L_const by the training-set size rule
+
+    def loss_for(self, n_train: int) -> LossConfig:
+        """The loss a run of ``n_train`` training samples trains with."""
+        return sized(self.loss, n_train) if self.home else self.loss
 
 
 def parse_method(spec: str) -> Method:
@@ -42,9 +49,9 @@ def parse_method(spec: str) -> Method:
     what is wrong."""
     text, _, flag_text = spec.partition("!")
     flags = set(flag_text.split(",")) - {""}
-    if flags - {"check", "sensors", "members"}:
-        raise ValueError(f"method '{spec}': flags are 'check', 'sensors' and 'members', "
-                         f"not '{flag_text}'")
+    if flags - {"check", "sensors", "members", "home"}:
+        raise ValueError(f"method '{spec}': flags are 'check', 'sensors', 'members' and "
+                         f"'home', not '{flag_text}'")
     body, _, schedule = text.partition("~")
     short, _, rest = body.partition(":")
     loss, _, weight = rest.partition("@")
@@ -65,4 +72,4 @@ def parse_method(spec: str) -> Method:
     except ValueError as e:
         raise ValueError(f"method '{spec}': {e}") from None
     return Method(spec, STRUCTURE_NAMES[short], config, schedule, check="check" in flags,
-                  members="members" in flags)
+                  members="members" in flags, home="home" in flags)
