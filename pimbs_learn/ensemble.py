@@ -26,7 +26,7 @@ from pimbs_learn.run import Run, TrainResult
 
 # Runs of at most this many training samples train two networks (the N = 5 regime of the
 # self-check's nearest-size rule; notebook §19).
-MEMBERS_UP_TO = 7
+MEMBERS_UP_TO = 20
 MEMBERS = 2
 SEED_STEP = 1000  # member i starts from the initial weights of seed + i·SEED_STEP
 
@@ -43,7 +43,8 @@ def member_runs(run: Run, k: int) -> list[Run]:
     the rows tells whether the physics pays (§19), so the mean keeps half of it. Beside a
     Basic run they are Basic too, so Basic is the same size.
     """
-    return [run] + [replace(run, seed=run.seed + i * SEED_STEP, loss=BASIC)
+    partner = replace(run.loss, const=False) if run.loss.pinn else BASIC
+    return [run] + [replace(run, seed=run.seed + i * SEED_STEP, loss=partner)
                     for i in range(1, k)]
 
 
