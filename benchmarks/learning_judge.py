@@ -6,7 +6,8 @@ the odd seeds 41–79 (judged in docs/learning-notebook.md §9), ``second``, the
 40–78 (§10), both of ``--seed0 0`` and ``--seed0 40``, ``third``, the even seeds 80–118
 of ``--seed0 80`` (§12), ``fourth``, the even seeds 120–158 of ``--seed0 120`` (§13;
 19 arms: arm150's MuJoCo plant cannot be recorded), and ``fifth``, the odd seeds 121–159
-of the same population (§21; 18 arms: arm127's and arm135's plants cannot be recorded).
+of the same population (§21; 18 arms: arm127's and arm135's plants cannot be recorded),
+and ``sixth``, the odd seeds 161–199 of ``--seed0 160`` (§22).
 Every cell (arm, N, seed) trains, paired (same rows, same initial weights):
 
 * the **default** as ``pimbs train --no-prior --n-train N --seed S`` runs it: its width,
@@ -52,7 +53,8 @@ HALVES = {"first": [f"arm{s:03d}" for s in range(41, 80, 2)],
           "second": [f"arm{s:03d}" for s in range(40, 79, 2)],
           "third": [f"arm{s:03d}" for s in range(80, 119, 2)],
           "fourth": [f"arm{s:03d}" for s in range(120, 159, 2)],
-          "fifth": [f"arm{s:03d}" for s in range(121, 160, 2)]}
+          "fifth": [f"arm{s:03d}" for s in range(121, 160, 2)],
+          "sixth": [f"arm{s:03d}" for s in range(161, 200, 2)]}
 DEFAULT = "se:basic+const+pinn@auto~exp!check,sensors,members,home"
 BASIC = "se:basic~exp!members"
 PAPER_BASIC = "mlp:basic"  # the paper's network and constant-lr Adam, fixed α unused
@@ -139,7 +141,8 @@ def main() -> None:
                     help="folder of benchmarks/population.py holding the half's seeds")
     ap.add_argument("--half", choices=sorted(HALVES), default="second",
                     help="which judging half (first: odd seeds 41-79, second: even 40-78, "
-                         "third: even 80-118, fourth: even 120-158, fifth: odd 121-159)")
+                         "third: even 80-118, fourth: even 120-158, fifth: odd 121-159, "
+                         "sixth: odd 161-199)")
     ap.add_argument("--size", choices=("cpu", "full"), default="cpu")
     ap.add_argument("--out", type=Path, required=True, help="folder for runs.jsonl")
     ap.add_argument("--jobs", type=int, default=2)

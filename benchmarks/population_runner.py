@@ -134,6 +134,9 @@ def _train_once(batch: list[Job], runs: list[list[Run]], options: TrainOptions) 
     A checked default that falls back trains exactly what Basic trains on the same cell
     (same rows, loss, structure, schedule and initial weights), so where both are in the
     batch the one result serves both; this spares the judge about a quarter of its runs.
+    Networks without the torque balance train as a stack of their own: in a stack with
+    physics runs each of them would pay for the torque balance's matmuls with a zero
+    weight (about half of a physics network's epoch).
     """
     from pimbs_learn.ensemble import merge
     from pimbs_learn.train import train_runs
@@ -142,9 +145,12 @@ def _train_once(batch: list[Job], runs: list[list[Run]], options: TrainOptions) 
     first: dict[tuple, int] = {}
     which = [first.setdefault((j.arm["arm"], j.n, r.seed, r.loss, r.structure), i)
              for i, (j, r) in enumerate(flat)]
-    distinct = sorted(set(which))
-    trained = dict(zip(distinct, train_runs([flat[i][1] for i in distinct], options),
-                       strict=True))
+    trained = {}
+    for pinn in (True, False):
+        stack = sorted({i for i in which if flat[i][1].loss.pinn == pinn})
+        if stack:
+            trained.update(zip(stack, train_runs([flat[i][1] for i in stack], options),
+                               strict=True))
     out, at = [], 0
     for members in runs:
         out.append(merge([trained[which[at + k]] for k in range(len(members))]))

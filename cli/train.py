@@ -67,10 +67,10 @@ JOINT_ANGLE_ROWS = 64
                    "the balance can carry them: the pinn loss with the automatic weight on "
                    "an ATL-Map without a prior]")
 @click.option("--members", type=click.IntRange(min=1), default=None,
-              help="train the asked network and K − 1 Basic ones (no physics terms) on the "
-                   "same rows from other initial weights, and keep their mean, stored as "
-                   "one wider network [default: 2 with at most 7 training samples, where "
-                   "the rows cannot tell whether the physics pays; else 1]")
+              help="train the asked network and K − 1 more of its loss without L_const (the "
+                   "home pose) on the same rows from other initial weights, and keep their "
+                   "mean, stored as one wider network [default: 2 with at most 20 training "
+                   "samples, where the rows cannot tell whether the home pose holds; else 1]")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
                    "--lr-schedule constant --hidden 1000 --no-self-check --members 1 (options "
@@ -194,8 +194,9 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
         console.print(result.self_check.line(run.loss.name), markup=False)
     if result.members is not None:
         each = ", ".join(f"{m['eval_loss']:.4g}" for m in result.metrics()["members"])
-        console.print(f"{len(result.members)} networks averaged into one, the asked loss's "
-                      f"and Basic's from other initial weights (L_eval each: {each})", markup=False)
+        losses = " and ".join(m["loss"] for m in result.metrics()["members"])
+        console.print(f"{len(result.members)} networks averaged into one ({losses}, from "
+                      f"other initial weights; L_eval each: {each})", markup=False)
     if result.sensor_terms is not None:
         from pimbs_learn.sensor_terms import line
 

@@ -1,13 +1,15 @@
 """A body schema from a few samples as the mean of two networks, stored as one network.
 
-Why: from 5 samples nothing in the rows tells whether the physics terms pay. On a
-population of drawn arms (docs/learning-notebook.md §19) the physics run won on most cells
-and lost on some by up to 4×, and neither the Gaussian process's check nor a K-fold check
-with the networks themselves told which. So with that few samples the schema is the mean
-of the network the loss asks for and a Basic network (no physics terms) from other initial
-weights: where the physics run goes wrong the mean loses half as much, where it is right
-the mean keeps most of its gain. Basic itself is then the mean of two Basic networks, so
-the two stay the same size and the physics remains the only difference.
+Why: from 5–10 samples nothing in the rows tells whether each physics term pays. On
+populations of drawn arms (docs/learning-notebook.md §19, §22) the physics run won on most
+cells and lost on some by up to 4×, and neither the Gaussian process's check nor a K-fold
+check with the networks themselves told which. The losses came mostly from L_const, the
+home pose at zero tension: where a loadcell's zero has moved, or five poses extrapolate
+badly to the home pose, it bends the network. So with that few samples the schema is the
+mean of the network the loss asks for and the same loss without L_const, from other
+initial weights: both keep the torque balance's gain, and where the home pose goes wrong
+the mean loses half as much. Basic itself is then the mean of two Basic networks, so the
+two stay the same size and the physics remains the only difference.
 
 Two MLPs of width H averaged are exactly one MLP of width k·H: their first layers stacked,
 their second layers on a block diagonal, their output layers side by side divided by k (the
@@ -24,8 +26,8 @@ import numpy as np
 from pimbs_learn.losses import BASIC
 from pimbs_learn.run import Run, TrainResult
 
-# Runs of at most this many training samples train two networks (the N = 5 regime of the
-# self-check's nearest-size rule; notebook §19).
+# Runs of at most this many training samples train two networks: the regimes of 5 and 10
+# samples in the nearest-size rules, as for L_const (notebook §22).
 MEMBERS_UP_TO = 20
 MEMBERS = 2
 SEED_STEP = 1000  # member i starts from the initial weights of seed + i·SEED_STEP
@@ -37,11 +39,13 @@ def members_for(n_train: int) -> int:
 
 
 def member_runs(run: Run, k: int) -> list[Run]:
-    """The run itself, and k − 1 Basic runs on the same rows from other initial weights.
+    """The run itself, and k − 1 runs of its loss without L_const on the same rows from
+    other initial weights.
 
-    Beside a run with physics terms the others are Basic: with this few samples nothing in
-    the rows tells whether the physics pays (§19), so the mean keeps half of it. Beside a
-    Basic run they are Basic too, so Basic is the same size.
+    Beside a run with the torque balance the others keep it and leave out the home pose:
+    with this few samples nothing in the rows tells whether the home pose holds (§22), so
+    the mean keeps half of it. Beside a run without the torque balance they are Basic, so
+    Basic stays the same size.
     """
     partner = replace(run.loss, const=False) if run.loss.pinn else BASIC
     return [run] + [replace(run, seed=run.seed + i * SEED_STEP, loss=partner)

@@ -56,14 +56,19 @@ def test_train_with_members_trains_them_stacked() -> None:
 
 
 def test_members_follow_the_training_set_size() -> None:
-    assert members_for(5) == 2 and members_for(7) == 2
-    assert members_for(8) == 1 and members_for(30) == 1
+    assert members_for(5) == 2 and members_for(10) == 2 and members_for(20) == 2
+    assert members_for(21) == 1 and members_for(30) == 1
 
 
-def test_beside_a_physics_run_the_other_network_is_basic() -> None:
+def test_beside_a_physics_run_the_other_network_leaves_out_only_the_home_pose() -> None:
     physics = _run()
-    assert [(r.loss.pinn, r.loss.const) for r in member_runs(physics, 2)] == \
-        [(True, True), (False, False)]
+    pair = member_runs(physics, 2)
+    assert [(r.loss.pinn, r.loss.const) for r in pair] == [(True, True), (True, False)]
+    # the torque balance as asked: weight and sensor terms unchanged
+    assert (pair[1].loss.weighting, pair[1].loss.alpha, pair[1].loss.sensors) == \
+        (physics.loss.weighting, physics.loss.alpha, physics.loss.sensors)
+    assert [r.loss.name for r in member_runs(_run(loss="basic+const"), 2)] == \
+        ["basic+const", "basic"]
     basic = _run(loss="basic")
     pair = member_runs(basic, 2)
     assert [r.loss.name for r in pair] == ["basic", "basic"]
@@ -91,9 +96,11 @@ def test_pimbs_train_averages_two_networks_at_few_samples_only(tmp_path) -> None
 
     few = trained("--n-train", "5")
     assert few["architecture"]["layers"][1] == 16
-    assert [m["loss"] for m in few["metrics"]["members"]][1] == "basic"
-    # without a prior the physics network fits sensor terms: still reported beside Basic's none
+    assert [m["loss"] for m in few["metrics"]["members"]] == ["basic+const+pinn", "basic+pinn"]
+    # without a prior both physics networks fit sensor terms, reported as their mean
     assert trained("--n-train", "5", "--no-prior")["metrics"]["sensor_terms"] is not None
-    assert trained("--n-train", "10")["metrics"]["members"] is None
+    assert [m["loss"] for m in trained("--n-train", "10", "--loss", "basic")["metrics"]
+            ["members"]] == ["basic", "basic"]
+    assert trained("--n-train", "25")["metrics"]["members"] is None
     assert trained("--n-train", "5", "--paper", "--hidden", "8")["metrics"]["members"] is None
-    assert trained("--n-train", "10", "--members", "2")["architecture"]["layers"][1] == 16
+    assert trained("--n-train", "25", "--members", "2")["architecture"]["layers"][1] == 16

@@ -153,9 +153,10 @@ def test_a_default_that_falls_back_shares_basics_run(monkeypatch):
 
 
 def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
-    """With the ``members`` flag a run of few samples is the mean of its network and a Basic
-    one: each distinct network is trained once in the batch (the default's Basic network is
-    Basic's second), and the line's L_eval is the merged network's."""
+    """With the ``members`` flag a run of few samples is the mean of its networks: the
+    physics networks train in one stack, the Basic ones in another (they skip the torque
+    balance's matmuls), each distinct network once in the batch (a plain Basic run of the
+    same cell is Basic's first network), and the line's L_eval is the merged network's."""
     from pimbs_learn.ensemble import member_runs
 
     runner = _runner()
@@ -163,14 +164,16 @@ def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
     arm = {"arm": "arm001", "dof": 2, "n_muscles": 4}
     default = parse_method("se:basic+const+pinn@auto~exp!sensors,members")
     basic = parse_method("se:basic~exp!members")
-    assert basic.members and not parse_method("se:basic~exp").members
-    jobs = [runner.Job(arm, 5, 0, default), runner.Job(arm, 5, 0, basic)]
+    plain = parse_method("se:basic~exp")
+    assert basic.members and not plain.members
+    jobs = [runner.Job(arm, 5, 0, default), runner.Job(arm, 5, 0, basic),
+            runner.Job(arm, 5, 0, plain)]
     rows = split(_samples(1), 5, 0)
     physics = member_runs(Run(*rows, default.loss, 0, True, default.structure), 2)
     basics = member_runs(Run(*rows, basic.loss, 0, True, basic.structure), 2)
-    results = runner._train_once(jobs, [physics, basics], OPTIONS)
-    assert trained == [3]
-    assert [m["loss"] for m in results[0].members] == ["basic+const+pinn", "basic"]
-    assert results[0].members[1]["eval_loss"] == results[1].members[1]["eval_loss"]
+    results = runner._train_once(jobs, [physics, basics, basics[:1]], OPTIONS)
+    assert trained == [2, 2]  # the two physics networks, then the two Basic ones
+    assert [m["loss"] for m in results[0].members] == ["basic+const+pinn", "basic+pinn"]
+    assert results[2].eval_loss == results[1].members[0]["eval_loss"]
     assert results[0].eval_loss != results[1].eval_loss
     assert results[1].eval_loss not in {m["eval_loss"] for m in results[1].members}
