@@ -195,8 +195,8 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     if result.members is not None:
         each = ", ".join(f"{m['eval_loss']:.4g}" for m in result.metrics()["members"])
         losses = " and ".join(m["loss"] for m in result.metrics()["members"])
-        console.print(f"{len(result.members)} networks averaged into one ({losses}, from "
-                      f"other initial weights; L_eval each: {each})", markup=False)
+        console.print(f"{len(result.members)} networks averaged into one ({losses}, each from "
+                      f"its own initial weights; L_eval each: {each})", markup=False)
     if result.sensor_terms is not None:
         from pimbs_learn.sensor_terms import line
 
