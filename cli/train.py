@@ -193,8 +193,9 @@ def command(ctx: click.Context, threads: int | None, data: Path, map_kind: str, 
     if result.self_check is not None:
         console.print(result.self_check.line(run.loss.name), markup=False)
     if result.members is not None:
-        each = ", ".join(f"{m['eval_loss']:.4g}" for m in result.metrics()["members"])
-        losses = " and ".join(m["loss"] for m in result.metrics()["members"])
+        nets = result.metrics()["members"]
+        each = ", ".join(f"{m['eval_loss']:.4g}" for m in nets)
+        losses = " and ".join(m["loss"] for m in nets)
         console.print(f"{len(result.members)} networks averaged into one ({losses}, each from "
                       f"its own initial weights; L_eval each: {each})", markup=False)
     if result.sensor_terms is not None:

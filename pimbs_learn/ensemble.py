@@ -23,12 +23,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from pimbs_learn.losses import BASIC
+from pimbs_learn.losses import BASIC, HOME_POSE_UP_TO
 from pimbs_learn.run import Run, TrainResult
 
-# Runs of at most this many training samples train two networks: the regimes of 5 and 10
-# samples in the nearest-size rules, as for L_const (notebook §22).
-MEMBERS_UP_TO = 20
+# Runs of at most this many training samples train two networks: where the default keeps
+# L_const, whose hedge the second network is (the regimes of 5 and 10 samples; §22).
+MEMBERS_UP_TO = HOME_POSE_UP_TO
 MEMBERS = 2
 SEED_STEP = 1000  # member i starts from the initial weights of seed + i·SEED_STEP
 
