@@ -86,11 +86,15 @@ from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 # the same layout of families and simulators), for a rule changed after that look. Once
 # both had been looked at, a third judging split of 40 arms never drawn before, seeds 80-119
 # (``benchmarks/population.py --arms 40 --seed0 80``: 30 on PIMBS's simulator, 10 with
-# MuJoCo as the plant), for rules changed after both looks.
+# MuJoCo as the plant), for rules changed after both looks. After the third had been looked
+# at, a fourth of arms no diagnosis had seen: seeds 120-199 (``--seed0 120`` and ``--seed0
+# 160``, 40 arms each, drawn for the learning work; diagnose each population with
+# ``--split judge4``: the seeds it holds are judged).
 SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge": [s for s in range(41, 80) if s % 2 == 1],
           "judge2": [s for s in range(1, 40) if s % 2 == 1],
-          "judge3": list(range(80, 120))}
+          "judge3": list(range(80, 120)),
+          "judge4": list(range(120, 200))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this

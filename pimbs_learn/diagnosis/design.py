@@ -217,7 +217,7 @@ def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Ve
     pool = candidate_pool(arm)
     models = [verdict.fit, *(r.fit for r in verdict.rivals)]
     preds = [predict(arm, pool, m, physics, noise) for m in models]
-    described = replace(physics, tied=None, _cache={})
+    described = replace(physics, tied=None, recordings=1, _cache={})
     clean = predict(arm, pool, None, physics, noise)
     schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
     tests = []
@@ -266,7 +266,7 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
         pool = candidate_pool(arm)
     named, other = verdict.fit, verdict.without
     pred_a, pred_b = (predict(arm, pool, m, physics, noise) for m in (named, other))
-    described = replace(physics, tied=None, _cache={})
+    described = replace(physics, tied=None, recordings=1, _cache={})
     clean = predict(arm, pool, None, physics, noise)
     schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
     tests = [_Test(physics, described, schema, data, other, pred_b, pred_a),

@@ -225,13 +225,15 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
     info["loadcell_zero_temperature_C"] = temp_zero.tolist()
     info["loadcell_zero_temperature_source"] = paired.temp_zero_source or "first samples"
 
-    def make(degree: int, kap: np.ndarray) -> Physics:
+    recordings = 1 if real.session is None else len(np.unique(real.session))
+
+    def make(degree: int, kap: np.ndarray, count: int = recordings) -> Physics:
         return Physics(PolyBasis(real.theta.shape[1], degree, center, scale), kap, gravity,
-                       temp_zero)
+                       temp_zero, recordings=count)
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)
-    first = make(degrees[len(degrees) // 2], start)
+    first = make(degrees[len(degrees) // 2], start, 1)
     for data in (real, ref):
         if data is not None:
             data.len_weight, noise = length_weights(first, data)

@@ -150,17 +150,41 @@ class Physics:
     # (P, M) schema of the reference, when the real arm's routing matches it: then only a
     # constant per muscle is refitted, and a joint offset shows in the lengths too.
     tied: np.ndarray | None = None
+    # recordings whose rows are fitted together: one body schema, and each recording after
+    # the first a length constant of its own per muscle (``blocks``)
+    recordings: int = 1
     _cache: dict = field(default_factory=dict, repr=False)
 
-    def basis_at(self, theta: np.ndarray, key, weight: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, list]:
+    def blocks(self, x: np.ndarray, session: np.ndarray | None) -> np.ndarray:
+        """(B, P, ...) per-pose basis rows → (B, P + S − 1, ...): the shared basis, then
+        the constant monomial of each recording after the first, on its rows only.
+
+        Each session on the arm starts from its own homing of the motors, so a muscle's
+        length is known up to a constant per session; the routing (the rest of the
+        schema) is one body's and is fitted on every row. Rows of no recorded session
+        (poses proposed for the next one) take the latest recording's constant."""
+        if self.recordings == 1:
+            return x
+        s = np.full(len(x), self.recordings - 1) if session is None else np.asarray(session)
+        shape = (-1, *([1] * (x.ndim - 1)))
+        extra = [x[:, :1] * (s == k).reshape(shape) for k in range(1, self.recordings)]
+        return np.concatenate([x, *extra], axis=1)
+
+    def constant(self, session: int) -> int:
+        """Index of the schema coefficient that shifts ``session``'s lengths alone (the
+        first recording's is the shared constant, monomial 0)."""
+        return 0 if session == 0 else self.basis.size + session - 1
+
+    def basis_at(self, theta: np.ndarray, key, weight: np.ndarray | None = None,
+                 session: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list]:
         """Basis values (B, P), gradients as (B, N, P), and per-muscle factorisations of the
         weighted normal equations — memoised per ``key``: the effect fits revisit the same
-        poses and weights many times."""
+        poses and weights many times. ``session``: each row's recording (``blocks``)."""
         if key is not None and key in self._cache:
             return self._cache[key]
-        values = self.basis.values(theta)
-        grads = np.ascontiguousarray(self.basis.gradients(theta).transpose(0, 2, 1))
+        values = self.blocks(self.basis.values(theta), session)
+        grads = np.ascontiguousarray(
+            self.blocks(self.basis.gradients(theta), session).transpose(0, 2, 1))
         eye = np.eye(values.shape[1])
         factors = []
         for w in (np.ones((len(values), 1)) if weight is None else weight).T:
@@ -281,12 +305,18 @@ def schema_target(state: State, data: Samples) -> np.ndarray:
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
     """Least-squares body schema weights (P, M) on these samples."""
-    values, _, factors = physics.basis_at(state.theta, key, data.len_weight)
+    values, _, factors = physics.basis_at(state.theta, key, data.len_weight, data.session)
     y = schema_target(state, data)
-    if physics.tied is not None:  # refit only the constant (monomial 0 is the constant)
+    if physics.tied is not None:  # refit only the constants (monomial 0 of each recording)
         w2 = np.ones_like(y) if data.len_weight is None else data.len_weight**2
         weights = physics.tied.copy()
-        weights[0] += np.sum(w2 * (y - values @ physics.tied), 0) / np.sum(w2, 0)
+        session = (np.zeros(len(y), int) if data.session is None or physics.recordings == 1
+                   else data.session)
+        for s in np.unique(session):
+            rows = session == s
+            rest = w2 * (y - values @ weights)
+            weights[physics.constant(s)] += (np.sum(rest[rows], 0)
+                                             / np.maximum(np.sum(w2[rows], 0), 1e-300))
         return weights
     if len(factors) == 1:
         return cho_solve(factors[0], values.T @ y)
@@ -295,15 +325,17 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
                      for j, f in enumerate(factors)], axis=1)
 
 
-def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
+                    session: np.ndarray | None = None) -> np.ndarray:
     """G = ∂h/∂θ of the fitted schema, as (B, M, N) (no normal equations needed)."""
-    return np.einsum("bpn,pm->bmn", physics.basis.gradients(theta), weights)
+    return np.einsum("bpn,pm->bmn", physics.blocks(physics.basis.gradients(theta), session),
+                     weights)
 
 
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
               key=None) -> tuple[np.ndarray, np.ndarray]:
     """(length residual (B, M) in m, torque residual (B, N) in N·m)."""
-    values, grads, _ = physics.basis_at(state.theta, key, data.len_weight)
+    values, grads, _ = physics.basis_at(state.theta, key, data.len_weight, data.session)
     r_len = schema_target(state, data) - values @ weights
     if data.len_weight is not None:
         r_len = r_len * data.len_weight

@@ -1,0 +1,55 @@
+"""Two recordings of one arm diagnosed together: each session homes its motors anew.
+
+A collection zeroes the motors' positions at its start, so a second session on the same arm
+reads every muscle's length shifted by a constant of its own. The body (routing, gravity,
+loadcells) is the same; the diagnosis must not read the shift as missing physics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from pimbs_arm.model import ArmModel
+from pimbs_learn.diagnosis.run import diagnose
+from pimbs_recording.format import read_recording, write_recording
+from pimbs_sim.effects import parse_effect
+from pimbs_sim.simulate import simulate
+
+ROBOT = "two-link-4-muscle"
+
+
+def _sessions(tmp_path, conceal: list[str], shift_m: float):
+    """(reals, references): 80 then 30 ATL poses; the second session's lengths read
+    ``shift_m`` × (1 … −1) across the muscles off the first's zero."""
+    arm = ArmModel.load(ROBOT)
+    effects = tuple(parse_effect(c, seed=1) for c in conceal)
+    reals, refs = [], []
+    for tag, n, seed in (("1", 80, 1), ("2", 30, 2)):
+        for kind, hidden, noise_seed, out in (("ref", (), seed + 100, refs),
+                                              ("real", effects, seed, reals)):
+            data, meta = simulate(arm, n, seed=seed, noise_seed=noise_seed, map_kind="atl",
+                                  effects=hidden)
+            path = tmp_path / f"{kind}{tag}.parquet"
+            write_recording(path, data, meta)
+            out.append(path)
+    rec = read_recording(reals[1])
+    m = len(rec.muscles)
+    column = rec.table.column("length").combine_chunks()
+    length = np.asarray(column.flatten()).reshape(-1, m) + shift_m * np.linspace(1, -1, m)
+    table = rec.table.set_column(rec.table.column_names.index("length"), "length",
+                                 pa.FixedSizeListArray.from_arrays(pa.array(length.ravel()), m))
+    write_recording(reals[1], table, rec.meta)
+    return reals, refs
+
+
+@pytest.mark.parametrize("conceal,named", [([], []),
+                                           (["tension_offset:12,muscles=m1"],
+                                            ["tension_offset"])])
+def test_a_session_homed_anew_is_no_physics(tmp_path, conceal, named):
+    reals, refs = _sessions(tmp_path, conceal, 0.003)
+    result, _ = diagnose(reals, refs, robot=ROBOT)
+    assert [e["name"] for e in result["effects"]] == named, result["effects"]
+    assert result["ambiguous"] == [] and result["unexplained"] == [], result["unexplained"]
+    assert result["residual"]["consistent_with_noise"]
