@@ -78,6 +78,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pimbs_learn.diagnosis.inputs import DiagnosisInputError  # noqa: E402
 from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 
 # The split, fixed before any diagnosis ran: even seeds 0-38 develop (the arms the learning
@@ -615,8 +616,8 @@ def main() -> None:
         for future in as_completed(futures):
             try:
                 r = future.result()
-            except StaleRecording as exc:
-                d, k = futures[future]
+            except (StaleRecording, DiagnosisInputError) as exc:  # e.g. a plant that held
+                d, k = futures[future]                              # too few of the poses
                 print(f"{d['arm']} {k}: not scored ({exc})", flush=True)
                 continue
             with results.open("a") as fh:
