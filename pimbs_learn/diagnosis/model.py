@@ -147,8 +147,9 @@ class Physics:
     gravity: GravityFunction
     temp_zero: np.ndarray        # (M,) °C at which each loadcell reads right (T0)
     ridge: float = 1e-9
-    # (P, M) schema of the reference, when the real arm's routing matches it: then only a
-    # constant per muscle is refitted, and a joint offset shows in the lengths too.
+    # schema of the reference (as ``fit_schema`` returns it), when the real arm's routing
+    # matches it: then only a constant per muscle (and recording) is refitted, and a joint
+    # offset shows in the lengths too.
     tied: np.ndarray | None = None
     # recordings whose rows are fitted together: one body schema, and each recording after
     # the first a length constant of its own per muscle (``blocks``)
@@ -304,7 +305,8 @@ def schema_target(state: State, data: Samples) -> np.ndarray:
 
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
-    """Least-squares body schema weights (P, M) on these samples."""
+    """Least-squares body schema weights on these samples: (P, M), or (P + R − 1, M) for R
+    recordings fitted together (``Physics.blocks``)."""
     values, _, factors = physics.basis_at(state.theta, key, data.len_weight, data.session)
     y = schema_target(state, data)
     if physics.tied is not None:  # refit only the constants (monomial 0 of each recording)
