@@ -616,8 +616,10 @@ def main() -> None:
         for future in as_completed(futures):
             try:
                 r = future.result()
-            except (StaleRecording, DiagnosisInputError) as exc:  # e.g. a plant that held
-                d, k = futures[future]                              # too few of the poses
+            # a stored recording that no longer matches, or one the diagnosis refuses (a
+            # plant that held too few of the poses): reported, not scored
+            except (StaleRecording, DiagnosisInputError) as exc:
+                d, k = futures[future]
                 print(f"{d['arm']} {k}: not scored ({exc})", flush=True)
                 continue
             with results.open("a") as fh:

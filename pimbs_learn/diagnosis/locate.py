@@ -18,7 +18,7 @@ def implied_tension_error(physics: Physics, fit: Fit, data: Samples,
                           r_tau: np.ndarray) -> np.ndarray:
     """(B, M): tension error of muscle j alone that best explains each torque residual."""
     state = apply_effects(physics, data, fit.units, fit.params)
-    jac = schema_jacobian(physics, state.theta, fit.weights, data.session)  # (B, M, N)
+    jac = schema_jacobian(physics, state.theta, fit.weights)  # (B, M, N)
     # r = −G_jᵀ e_j  →  e_j = −G_j·r / |G_j|²
     return -np.einsum("bmn,bn->bm", jac, r_tau) / np.maximum(np.sum(jac**2, axis=2), 1e-12)
 

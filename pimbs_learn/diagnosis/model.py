@@ -156,20 +156,21 @@ class Physics:
     recordings: int = 1
     _cache: dict = field(default_factory=dict, repr=False)
 
-    def blocks(self, x: np.ndarray, session: np.ndarray | None) -> np.ndarray:
-        """(B, P, ...) per-pose basis rows → (B, P + S − 1, ...): the shared basis, then
-        the constant monomial of each recording after the first, on its rows only.
+    def blocks(self, values: np.ndarray, session: np.ndarray | None) -> np.ndarray:
+        """(B, P) basis values → (B, P + R − 1): the shared basis, then the constant
+        monomial of each recording after the first, on its rows only.
 
         Each session on the arm starts from its own homing of the motors, so a muscle's
         length is known up to a constant per session; the routing (the rest of the
         schema) is one body's and is fitted on every row. Rows of no recorded session
-        (poses proposed for the next one) take the latest recording's constant."""
+        (poses proposed for the next one) take the latest recording's constant. The
+        constants have no gradient: the Jacobian is the shared schema's
+        (``weights[:basis.size]``)."""
         if self.recordings == 1:
-            return x
-        s = np.full(len(x), self.recordings - 1) if session is None else np.asarray(session)
-        shape = (-1, *([1] * (x.ndim - 1)))
-        extra = [x[:, :1] * (s == k).reshape(shape) for k in range(1, self.recordings)]
-        return np.concatenate([x, *extra], axis=1)
+            return values
+        s = np.full(len(values), self.recordings - 1) if session is None else session
+        extra = [values[:, :1] * (s == k)[:, None] for k in range(1, self.recordings)]
+        return np.concatenate([values, *extra], axis=1)
 
     def constant(self, session: int) -> int:
         """Index of the schema coefficient that shifts ``session``'s lengths alone (the
@@ -178,14 +179,14 @@ class Physics:
 
     def basis_at(self, theta: np.ndarray, key, weight: np.ndarray | None = None,
                  session: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list]:
-        """Basis values (B, P), gradients as (B, N, P), and per-muscle factorisations of the
-        weighted normal equations — memoised per ``key``: the effect fits revisit the same
-        poses and weights many times. ``session``: each row's recording (``blocks``)."""
+        """Basis values (B, P + R − 1) (``blocks``; ``session``: each row's recording),
+        gradients as (B, N, P), and per-muscle factorisations of the weighted normal
+        equations — memoised per ``key``: the effect fits revisit the same poses and weights
+        many times."""
         if key is not None and key in self._cache:
             return self._cache[key]
         values = self.blocks(self.basis.values(theta), session)
-        grads = np.ascontiguousarray(
-            self.blocks(self.basis.gradients(theta), session).transpose(0, 2, 1))
+        grads = np.ascontiguousarray(self.basis.gradients(theta).transpose(0, 2, 1))
         eye = np.eye(values.shape[1])
         factors = []
         for w in (np.ones((len(values), 1)) if weight is None else weight).T:
@@ -327,11 +328,10 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
                      for j, f in enumerate(factors)], axis=1)
 
 
-def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray,
-                    session: np.ndarray | None = None) -> np.ndarray:
+def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """G = ∂h/∂θ of the fitted schema, as (B, M, N) (no normal equations needed)."""
-    return np.einsum("bpn,pm->bmn", physics.blocks(physics.basis.gradients(theta), session),
-                     weights)
+    return np.einsum("bpn,pm->bmn", physics.basis.gradients(theta),
+                     weights[:physics.basis.size])
 
 
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
@@ -343,7 +343,7 @@ def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray
         r_len = r_len * data.len_weight
     if state.len_scale != 1.0:  # in reading units, like the torques (``reading_scale``)
         r_len = r_len / state.len_scale
-    gt = grads @ weights  # Gᵀ per sample, (B, N, M)
+    gt = grads @ weights[:physics.basis.size]  # Gᵀ per sample, (B, N, M)
     r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
     if state.scale is not None:
         r_tau = r_tau / reading_scale(gt, state.scale)

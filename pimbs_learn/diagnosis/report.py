@@ -91,7 +91,7 @@ def effect_joints(cand: Candidate, physics: Physics, data: Samples, joints: list
                         for u, p in zip(final.units, final.params, strict=True)])
     before = apply_effects(physics, data, final.units, without)
     after = apply_effects(physics, data, final.units, final.params)
-    jac = schema_jacobian(physics, after.theta, final.weights, data.session)
+    jac = schema_jacobian(physics, after.theta, final.weights)
     change = (np.einsum("bmn,bm->bn", jac, after.tension - before.tension)
               + (after.tau - before.tau))
     rms = np.sqrt(np.mean(change**2, axis=0))
