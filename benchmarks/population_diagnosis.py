@@ -576,6 +576,8 @@ def main() -> None:
     ap.add_argument("--summary", type=Path, help="print the tables of a results file")
     a = ap.parse_args()
     if a.summary:
+        if not a.summary.is_file():
+            ap.error(f"{a.summary}: no such results file (a pass writes OUT/diagnosis-SPLIT.jsonl)")
         lines = read_lines(a.summary)
         print(summary(lines))
         print("\n" + bars(lines))
@@ -586,12 +588,22 @@ def main() -> None:
         ap.error("--kinds probe is for the development split only (--split dev)")
     pop, out = a.population.resolve(), a.out.resolve()
     twins = (a.twins or out / "twins").resolve()
-    out.mkdir(parents=True, exist_ok=True)
     results = out / f"diagnosis-{a.split}.jsonl"
+    if not (pop / "manifest.jsonl").is_file():
+        ap.error(f"{pop}: no manifest.jsonl; draw a population there first with "
+                 f"benchmarks/population.py --out {pop}")
     manifest = {d["arm"]: d for d in read_lines(pop / "manifest.jsonl")}
     arms = [manifest[f"arm{s:03d}"] for s in SPLITS[a.split] if f"arm{s:03d}" in manifest]
+    if not arms:
+        seeds = SPLITS[a.split]
+        ap.error(f"{pop} holds no arm of the {a.split} split (seeds {seeds[0]}-{seeds[-1]}); "
+                 "choose the split its seeds belong to")
     if a.arms:
+        unknown = sorted(set(a.arms) - {d["arm"] for d in arms})
+        if unknown:
+            ap.error(f"not arms of the {a.split} split in {pop}: {', '.join(unknown)}")
         arms = [d for d in arms if d["arm"] in set(a.arms)]
+    out.mkdir(parents=True, exist_ok=True)
     done = {(r["arm"], r["kind"]) for r in read_lines(results)}
     no_narrow = set()
     for d in arms if {"narrow", "narrow-null"} & set(a.kinds) else ():
