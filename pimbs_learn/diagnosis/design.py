@@ -210,6 +210,17 @@ class _Test:
         return s_ee + self.ee - quad
 
 
+def _described(arm: ArmModel, pool: PosePlan, physics: Physics, noise: dict
+               ) -> tuple[Physics, Samples, np.ndarray]:
+    """The physics the predictions are scored with, a clean session at the pool's poses,
+    and the body schema fitted on it: the description's own (the predictions come from
+    it), one recording, no routing tied to the real arm's."""
+    described = replace(physics, tied=None, recordings=1, _cache={})
+    clean = predict(arm, pool, None, physics, noise)
+    return described, clean, fit_schema(
+        described, apply_effects(described, clean, [], np.zeros(0)), clean)
+
+
 def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
                      k: int, noise: dict | None = None) -> dict:
     """The ``k`` poses (and floors) that best tell the named effect from its rivals."""
@@ -217,9 +228,7 @@ def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Ve
     pool = candidate_pool(arm)
     models = [verdict.fit, *(r.fit for r in verdict.rivals)]
     preds = [predict(arm, pool, m, physics, noise) for m in models]
-    described = replace(physics, tied=None, recordings=1, _cache={})
-    clean = predict(arm, pool, None, physics, noise)
-    schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
+    described, _, schema = _described(arm, pool, physics, noise)
     tests = []
     for b in range(1, len(models)):  # the named against each rival, either way true
         for rival, truth in ((b, 0), (0, b)):
@@ -266,9 +275,7 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
         pool = candidate_pool(arm)
     named, other = verdict.fit, verdict.without
     pred_a, pred_b = (predict(arm, pool, m, physics, noise) for m in (named, other))
-    described = replace(physics, tied=None, recordings=1, _cache={})
-    clean = predict(arm, pool, None, physics, noise)
-    schema = fit_schema(described, apply_effects(described, clean, [], np.zeros(0)), clean)
+    described, clean, schema = _described(arm, pool, physics, noise)
     tests = [_Test(physics, described, schema, data, other, pred_b, pred_a),
              _Test(physics, described, schema, data, named, pred_a, pred_b)]
     # a reading whose branch flips moves 2ĥ less than its tension: that change, past 2ĥ
