@@ -315,10 +315,10 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
         weights = physics.tied.copy()
         session = (np.zeros(len(y), int) if data.session is None or physics.recordings == 1
                    else data.session)
-        for s in np.unique(session):
+        for s in np.unique(session):  # in order: the first's constant shifts every row
             rows = session == s
-            rest = w2 * (y - values @ weights)
-            weights[physics.constant(s)] += (np.sum(rest[rows], 0)
+            rest = w2[rows] * (y[rows] - values[rows] @ weights)
+            weights[physics.constant(s)] += (np.sum(rest, 0)
                                              / np.maximum(np.sum(w2[rows], 0), 1e-300))
         return weights
     if len(factors) == 1:
