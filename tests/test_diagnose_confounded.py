@@ -225,6 +225,44 @@ def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow)
     assert list(effects)[0] == "link_mass"  # the arm's physics before the loadcell chain
 
 
+def test_a_heavier_upper_arm_is_simulated_as_the_one_fitted(tmp_path):
+    """The diagnosis fits a heavier upper arm as the forearm's unit (mass ×1.0) with its own
+    share of the shoulder's level of the gravity potential. The pose designer must simulate
+    that explanation, the upper arm ×1.4, or its poses separate another one."""
+    from pimbs_learn.diagnosis.design import _carried_link, link_masses
+
+    arm = ArmModel.load("two-link-4-muscle")
+    upper = _carried_link(arm, 0)
+    real, ref = _pair(tmp_path, arm, 120, [f"link_mass:1.4,link={upper}"])
+    result, inner = diagnose(real, ref, robot="two-link-4-muscle", design_poses=0)
+    assert [e["name"] for e in result["effects"]] == ["link_mass"], result["effects"]
+    final = inner["final"]
+    theta = np.random.default_rng(0).uniform(-0.5, 0.5, (50, arm.n_joints))
+    scales = {e.link: e.magnitude for e in link_masses(final.units, final.params, arm,
+                                                       inner["physics"], theta)}
+    assert scales[upper] == pytest.approx(1.4, abs=0.03), scales
+    assert all(abs(s - 1.0) < 0.03 for link, s in scales.items() if link != upper), scales
+
+
+def test_separating_poses_are_held_in_a_gentle_order():
+    """Chosen poses alternate between the ends of a range; held in that order every reading
+    keeps a share of the last pose's. The session holds them from the one nearest home,
+    each next the nearest to the last: one crossing between the ends instead of five."""
+    from types import SimpleNamespace
+
+    from pimbs_learn.diagnosis.design import gentle_order
+
+    low, high = np.full(2, 10.0), np.full(2, 200.0)
+    tension = np.array([high, low + 1, high + 2, low + 3, high + 4, low])
+    pred = SimpleNamespace(tension=tension, length=np.zeros((6, 1)))
+    rows = [0, 1, 2, 3, 4, 5]
+    order = gentle_order(pred, rows, {"tension_N": 0.3, "length_m": 5e-6})
+    assert sorted(order) == rows
+    assert order[0] == 5  # the one nearest home, unloaded
+    ends = [tension[i, 0] > 100 for i in order]
+    assert sum(a != b for a, b in zip(ends, ends[1:], strict=False)) == 1, order
+
+
 def test_a_gain_sliding_along_a_mass_is_either_or_on_a_drawn_arm(tmp_path):
     """A drawn 2-DOF arm (population seed 35) whose second joint turns about the vertical
     axis: only the first carries gravity, so a heavier link 2 (concealed, ×1.43) and a gain

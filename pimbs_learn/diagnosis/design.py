@@ -49,7 +49,7 @@ from pimbs_learn.diagnosis.model import (
     fit_schema,
 )
 from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
-from pimbs_sim.effects import T_REF, Effect
+from pimbs_sim.effects import T_REF, Effect, EffectSpecError
 from pimbs_sim.simulate import simulate
 
 POOL = 120          # candidate poses, each with three tension floors
@@ -123,10 +123,55 @@ ORDER = ("link_mass", "elastic_stiffness", "joint_offset", "tendon_friction", "t
          "tension_offset", "thermal_drift")
 
 
-def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel) -> tuple[Effect, ...]:
-    """The fitted effects as the simulator conceals them (the loadcell chain in order)."""
+MASS_STEP = 0.01  # a link's mass scale step for the gravity torque's derivative in it
+
+
+def link_masses(units: list[Unit], params: np.ndarray, arm: ArmModel, physics: Physics,
+                theta: np.ndarray) -> tuple[Effect, ...]:
+    """The fitted link-mass change as the simulator conceals it: one mass scale per link a
+    joint carries, the least-squares match at the poses ``theta`` to the gravity torque
+    the fit adds.
+
+    Why: the fit spreads a mass change over the links beyond a joint (one scale) and its
+    own share of each proximal level of the gravity potential; a heavier upper arm is the
+    latter on a forearm's unit. Scaling only the link the unit's joint carries would
+    simulate another explanation than the one fitted, and the poses would be chosen to
+    separate that one."""
+    fit = [(u, p) for u, p in zip(units, params, strict=True) if u.effect == "link_mass"]
+    if not fit:
+        return ()
+    extra = np.zeros(physics.gravity.coef.shape)
+    for u, p in fit:
+        extra += float(p) * (physics.gravity.distal_split(u.index)[0] if u.part == "distal"
+                             else physics.gravity.level(int(u.part.removeprefix("level"))))
+    target = physics.gravity.torque(theta, extra)
+    base = arm.gravity_torque(theta)
+    links, columns = [], []
+    for k in range(arm.n_joints):
+        link = _carried_link(arm, k)
+        try:
+            heavier = Effect("link_mass", 1.0 + MASS_STEP, link=link).physics(arm)
+        except EffectSpecError:  # a joint that carries no mass of its own
+            continue
+        links.append(link)
+        columns.append(((heavier.gravity_torque(theta) - base) / MASS_STEP).ravel())
+    if not columns:
+        return ()
+    scale, *_ = np.linalg.lstsq(np.stack(columns, 1), target.ravel(), rcond=None)
+    return tuple(Effect("link_mass", max(1.0 + float(s), 1e-3), link=link)
+                 for link, s in zip(links, scale, strict=True) if abs(s) > 1e-6)
+
+
+def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel,
+              masses: tuple[Effect, ...] | None = None) -> tuple[Effect, ...]:
+    """The fitted effects as the simulator conceals them (the loadcell chain in order).
+    ``masses``: the link-mass change as :func:`link_masses` matched it (without it, a
+    distal unit alone scales the link its joint carries)."""
     out = []
     fitted = [(u, p) for u, p in zip(units, params, strict=True) if u.effect not in SENSOR]
+    if masses is not None:
+        out += masses
+        fitted = [(u, p) for u, p in fitted if u.effect != "link_mass"]
     for u, p in sorted(fitted, key=lambda x: ORDER.index(x[0].effect)):
         p = float(p)
         muscles = () if u.part == "common" else (arm.muscles[u.index],)
@@ -148,7 +193,8 @@ def predict(arm: ArmModel, pool: PosePlan, fit: Fit | None, physics: Physics, no
     """What a session at the pool's poses records if ``fit``'s explanation is true (None:
     the description itself)."""
     n = len(pool.poses)
-    effects = () if fit is None else concealed(fit.units, fit.params, arm)
+    effects = () if fit is None else concealed(
+        fit.units, fit.params, arm, link_masses(fit.units, fit.params, arm, physics, pool.poses))
     data, _ = simulate(arm, n, "atl", effects=effects, noise=0.0, poses=pool)
     t = data["time"].astype("datetime64[us]").astype(np.int64) / 1e6
     out = Samples(theta=data["theta"], tension=data["tension"], length=data["length"],
@@ -221,6 +267,28 @@ def _described(arm: ArmModel, pool: PosePlan, physics: Physics, noise: dict
         described, apply_effects(described, clean, [], np.zeros(0)), clean)
 
 
+def gentle_order(pred: Samples, rows: list[int], noise: dict) -> list[int]:
+    """``rows`` in the order a session should hold them: each next the one whose readings
+    (``pred``, in units of the sensors' noise) differ least from the last, from the one
+    nearest home and unloaded.
+
+    Why: every board reads through a filter and every loadcell has hysteresis, so a share
+    of the previous reading and a branch set by the last change stay in each row. The
+    chosen poses are extremes, and held in the order chosen they alternate (the arm swung
+    from one end of a range to the other), which leaves the most of the previous pose in
+    each reading: a lag that scales the readings much as a loadcell gain does. In a gentle
+    order the readings carry little of it, and what separates the explanations stays."""
+    y = np.hstack([pred.tension[rows] / noise["tension_N"], pred.length[rows] / noise["length_m"]])
+    left = list(range(len(rows)))
+    order = [min(left, key=lambda i: float(np.sum(y[i] ** 2)))]
+    left.remove(order[0])
+    while left:
+        nxt = min(left, key=lambda i: float(np.sum((y[i] - y[order[-1]]) ** 2)))
+        order.append(nxt)
+        left.remove(nxt)
+    return [rows[i] for i in order]
+
+
 def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
                      k: int, noise: dict | None = None) -> dict:
     """The ``k`` poses (and floors) that best tell the named effect from its rivals."""
@@ -242,6 +310,7 @@ def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Ve
         best = int(np.argmax(worst))
         chosen.append(best)
         score = float(worst[best])
+    chosen = gentle_order(preds[0], chosen, noise)
     floors = pool.floors[chosen]
     names = [verdict.named.effect, *(r.effect for r in verdict.rivals)]
     return {"between": names, "poses": pool.poses[chosen].tolist(),
