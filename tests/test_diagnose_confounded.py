@@ -210,19 +210,23 @@ def test_several_recordings_pair_each_with_its_own_reference():
 
 def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow):
     """What the pose designer simulates for each explanation: the diagnosis' units turned
-    into the simulator's effects (stiffness as K_true/K_model, a mass as its scale)."""
+    into the simulator's effects (stiffness as K_true/K_model; a mass as the link masses
+    ``link_masses`` matched, first)."""
     from pimbs_learn.diagnosis.design import concealed
     from pimbs_learn.diagnosis.model import Unit
+    from pimbs_sim.effects import Effect
 
     units = [Unit("tension_offset", 0), Unit("elastic_stiffness", 5),
              Unit("link_mass", 0, "distal"), Unit("thermal_drift", -1, "common")]
-    effects = {e.name: e for e in concealed(units, np.array([20.0, 0.25, -0.2, 0.5]), elbow)}
-    assert effects["tension_offset"].muscles == ("TRIlong_tendon",)
-    assert effects["tension_offset"].magnitude == pytest.approx(20.0)
-    assert effects["elastic_stiffness"].magnitude == pytest.approx(0.8)
-    assert effects["link_mass"].magnitude == pytest.approx(0.8)
-    assert effects["thermal_drift"].muscles == ()  # every loadcell
-    assert list(effects)[0] == "link_mass"  # the arm's physics before the loadcell chain
+    mass = Effect("link_mass", 0.8)
+    effects = concealed(units, np.array([20.0, 0.25, -0.2, 0.5]), elbow, (mass,))
+    named = {e.name: e for e in effects}
+    assert named["tension_offset"].muscles == ("TRIlong_tendon",)
+    assert named["tension_offset"].magnitude == pytest.approx(20.0)
+    assert named["elastic_stiffness"].magnitude == pytest.approx(0.8)
+    assert named["thermal_drift"].muscles == ()  # every loadcell
+    assert effects[0] is mass and len(effects) == 4  # the arm's physics before the loadcells'
+
 
 
 def test_a_heavier_upper_arm_is_simulated_as_the_one_fitted(tmp_path):

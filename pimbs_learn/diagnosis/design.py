@@ -163,23 +163,17 @@ def link_masses(units: list[Unit], params: np.ndarray, arm: ArmModel, physics: P
 
 
 def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel,
-              masses: tuple[Effect, ...] | None = None) -> tuple[Effect, ...]:
-    """The fitted effects as the simulator conceals them (the loadcell chain in order).
-    ``masses``: the link-mass change as :func:`link_masses` matched it (without it, a
-    distal unit alone scales the link its joint carries)."""
-    out = []
-    fitted = [(u, p) for u, p in zip(units, params, strict=True) if u.effect not in SENSOR]
-    if masses is not None:
-        out += masses
-        fitted = [(u, p) for u, p in fitted if u.effect != "link_mass"]
+              masses: tuple[Effect, ...] = ()) -> tuple[Effect, ...]:
+    """The fitted effects as the simulator conceals them: the arm's physics first (the
+    link-mass change as :func:`link_masses` matched it: ``masses``), then the loadcell chain
+    in order."""
+    out = list(masses)
+    fitted = [(u, p) for u, p in zip(units, params, strict=True)
+              if u.effect not in (*SENSOR, "link_mass")]
     for u, p in sorted(fitted, key=lambda x: ORDER.index(x[0].effect)):
         p = float(p)
         muscles = () if u.part == "common" else (arm.muscles[u.index],)
-        if u.effect == "link_mass":
-            if u.part == "distal":
-                out.append(Effect("link_mass", max(1.0 + p, 1e-3),
-                                  link=_carried_link(arm, u.index)))
-        elif u.effect == "elastic_stiffness":
+        if u.effect == "elastic_stiffness":
             out.append(Effect("elastic_stiffness", 1.0 / max(1.0 + p, 1e-3), muscles=muscles))
         elif u.effect == "joint_offset":
             out.append(Effect("joint_offset", p, joints=(arm.joints[u.index],)))
