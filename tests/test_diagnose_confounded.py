@@ -228,7 +228,6 @@ def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow)
     assert effects[0] is mass and len(effects) == 4  # the arm's physics before the loadcells'
 
 
-
 def test_a_heavier_upper_arm_is_simulated_as_the_one_fitted(tmp_path):
     """The diagnosis fits a heavier upper arm as the forearm's unit (mass ×1.0) with its own
     share of the shoulder's level of the gravity potential. The pose designer must simulate
