@@ -206,6 +206,8 @@ def test_several_recordings_pair_each_with_its_own_reference():
     r = CliRunner().invoke(main, ["diagnose", str(real), str(real), "--reference", str(sim),
                                   "--reference", str(sim), "--corrected", "x.parquet"])
     assert r.exit_code != 0 and "--corrected writes one recording" in r.output
+    with pytest.raises(DiagnosisInputError, match="hold the same rows: give each session once"):
+        diagnose([real, real], [sim, sim])
 
 
 def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow):

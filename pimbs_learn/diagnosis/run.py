@@ -74,6 +74,11 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
             f"{len(reals)} recordings and {len(refs)} references: give one --reference per "
             "recording, in the same order (`pimbs simulate --poses-file` makes the one for a "
             "poses file), or none and --robot")
+    for i, rec in enumerate(reals):  # a copy would count its rows twice as evidence
+        for other in reals[:i]:
+            if rec.table.equals(other.table):
+                raise DiagnosisInputError(
+                    f"{other.path} and {rec.path} hold the same rows: give each session once")
     arm, kappa = None, None
     if robot is not None:
         from pimbs_arm.model import ArmModel
