@@ -5,9 +5,10 @@ on PIMBS's simulator, MJCF on MuJoCo as the plant) on which nothing was chosen: 
 the odd seeds 41–79 (judged in docs/learning-notebook.md §9), ``second``, the even seeds
 40–78 (§10), both of ``--seed0 0`` and ``--seed0 40``, ``third``, the even seeds 80–118
 of ``--seed0 80`` (§12), ``fourth``, the even seeds 120–158 of ``--seed0 120`` (§13;
-19 arms: arm150's MuJoCo plant cannot be recorded), and ``fifth``, the odd seeds 121–159
+19 arms: arm150's MuJoCo plant cannot be recorded), ``fifth``, the odd seeds 121–159
 of the same population (§21; 18 arms: arm127's and arm135's plants cannot be recorded),
-and ``sixth``, the odd seeds 161–199 of ``--seed0 160`` (§22).
+``sixth``, the odd seeds 161–199 of ``--seed0 160`` (§22), and ``seventh``, the odd
+seeds 201–239 of ``--seed0 200`` (§24).
 Every cell (arm, N, seed) trains, paired (same rows, same initial weights):
 
 * the **default** as ``pimbs train --no-prior --n-train N --seed S`` runs it: its width,
@@ -54,7 +55,8 @@ HALVES = {"first": [f"arm{s:03d}" for s in range(41, 80, 2)],
           "third": [f"arm{s:03d}" for s in range(80, 119, 2)],
           "fourth": [f"arm{s:03d}" for s in range(120, 159, 2)],
           "fifth": [f"arm{s:03d}" for s in range(121, 160, 2)],
-          "sixth": [f"arm{s:03d}" for s in range(161, 200, 2)]}
+          "sixth": [f"arm{s:03d}" for s in range(161, 200, 2)],
+          "seventh": [f"arm{s:03d}" for s in range(201, 240, 2)]}
 DEFAULT = "se:basic+const+pinn@auto~exp!check,sensors,members,home"
 BASIC = "se:basic~exp!members"
 PAPER_BASIC = "mlp:basic"  # the paper's network and constant-lr Adam, fixed α unused
@@ -142,7 +144,7 @@ def main() -> None:
     ap.add_argument("--half", choices=sorted(HALVES), default="second",
                     help="which judging half (first: odd seeds 41-79, second: even 40-78, "
                          "third: even 80-118, fourth: even 120-158, fifth: odd 121-159, "
-                         "sixth: odd 161-199)")
+                         "sixth: odd 161-199, seventh: odd 201-239)")
     ap.add_argument("--size", choices=("cpu", "full"), default="cpu")
     ap.add_argument("--out", type=Path, required=True, help="folder for runs.jsonl")
     ap.add_argument("--jobs", type=int, default=2)

@@ -67,10 +67,11 @@ JOINT_ANGLE_ROWS = 64
                    "the balance can carry them: the pinn loss with the automatic weight on "
                    "an ATL-Map without a prior]")
 @click.option("--members", type=click.IntRange(min=1), default=None,
-              help="train the asked network and K − 1 more of its loss without L_const (the "
-                   "home pose) on the same rows from other initial weights, and keep their "
-                   "mean, stored as one wider network [default: 2 with at most 20 training "
-                   "samples, where the rows cannot tell whether the home pose holds; else 1]")
+              help="train the asked network and K − 1 more on the same rows from other "
+                   "initial weights, and keep their mean, stored as one wider network: from "
+                   "8 training samples on the others leave out L_const (the home pose), with "
+                   "7 or fewer they are Basic [default: 2 with at most 20 training samples, "
+                   "where the rows cannot tell whether the physics holds; else 1]")
 @click.option("--paper", is_flag=True,
               help="the paper's configuration: --structure mlp --no-prior --alpha 1e-5 "
                    "--lr-schedule constant --hidden 1000 --no-self-check --members 1 (options "

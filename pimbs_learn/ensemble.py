@@ -8,8 +8,10 @@ home pose at zero tension: where a loadcell's zero has moved, or five poses extr
 badly to the home pose, it bends the network. So with that few samples the schema is the
 mean of the network the loss asks for and the same loss without L_const, from other
 initial weights: both keep the torque balance's gain, and where the home pose goes wrong
-the mean loses half as much. Basic itself is then the mean of two Basic networks, so the
-two stay the same size and the physics remains the only difference.
+the mean loses half as much. With at most 7 samples the torque balance itself can mislead
+(§22: two halves of arms disagreed there), so the other network is Basic and the mean
+keeps half of the physics. Basic itself is then the mean of two Basic networks, so the two
+stay the same size and the physics remains the only difference.
 
 Two MLPs of width H averaged are exactly one MLP of width k·H: their first layers stacked,
 their second layers on a block diagonal, their output layers side by side divided by k (the
@@ -23,12 +25,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from pimbs_learn.losses import BASIC, HOME_POSE_UP_TO
+from pimbs_learn.losses import BASIC, HOME_POSE_UP_TO, LossConfig
 from pimbs_learn.run import Run, TrainResult
 
 # Runs of at most this many training samples train two networks: where the default keeps
 # L_const, whose hedge the second network is (the regimes of 5 and 10 samples; §22).
 MEMBERS_UP_TO = HOME_POSE_UP_TO
+# Up to this many training samples (the 5-sample regime of the self-check's nearest-size
+# rule) the other network is Basic, not the physics without L_const (§19, §22, §24).
+BASIC_PARTNER_UP_TO = 7
 MEMBERS = 2
 SEED_STEP = 1000  # member i starts from the initial weights of seed + i·SEED_STEP
 
@@ -38,16 +43,23 @@ def members_for(n_train: int) -> int:
     return MEMBERS if n_train <= MEMBERS_UP_TO else 1
 
 
-def member_runs(run: Run, k: int) -> list[Run]:
-    """The run itself, and k − 1 runs of its loss without L_const on the same rows from
-    other initial weights.
+def partner_loss(run: Run) -> LossConfig:
+    """The loss of the networks averaged with ``run``'s.
 
-    Beside a run with the torque balance the others keep it and leave out the home pose:
-    with this few samples nothing in the rows tells whether the home pose holds (§22), so
-    the mean keeps half of it. Beside a run without the torque balance they are Basic, so
-    Basic stays the same size.
+    Beside a run with the torque balance and more than :data:`BASIC_PARTNER_UP_TO` samples
+    they keep the balance and leave out the home pose: nothing in the rows tells whether
+    the home pose holds (§22), so the mean keeps half of it. With fewer samples, or beside
+    a run without the torque balance, they are Basic (Basic then stays the same size).
     """
-    partner = replace(run.loss, const=False) if run.loss.pinn else BASIC
+    if run.loss.pinn and run.train.n_samples > BASIC_PARTNER_UP_TO:
+        return replace(run.loss, const=False)
+    return BASIC
+
+
+def member_runs(run: Run, k: int) -> list[Run]:
+    """The run itself, and k − 1 runs of :func:`partner_loss` on the same rows from other
+    initial weights."""
+    partner = partner_loss(run)
     return [run] + [replace(run, seed=run.seed + i * SEED_STEP, loss=partner)
                     for i in range(1, k)]
 

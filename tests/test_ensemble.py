@@ -60,15 +60,29 @@ def test_members_follow_the_training_set_size() -> None:
     assert members_for(21) == 1 and members_for(30) == 1
 
 
-def test_beside_a_physics_run_the_other_network_leaves_out_only_the_home_pose() -> None:
-    physics = _run()
-    pair = member_runs(physics, 2)
-    assert [(r.loss.pinn, r.loss.const) for r in pair] == [(True, True), (True, False)]
-    # the torque balance as asked: weight and sensor terms unchanged
-    assert (pair[1].loss.weighting, pair[1].loss.alpha, pair[1].loss.sensors) == \
-        (physics.loss.weighting, physics.loss.alpha, physics.loss.sensors)
-    assert [r.loss.name for r in member_runs(_run(loss="basic+const"), 2)] == \
+def _run_of(n: int, loss: str = "basic+const+pinn") -> Run:
+    return Run(synthetic_samples(n, seed=1), synthetic_samples(40, seed=98),
+               LossConfig.parse(loss, 1.0, "auto", sensors="pinn" in loss), seed=3)
+
+
+def test_beside_a_physics_run_of_8_to_20_samples_the_other_leaves_out_only_the_home_pose(
+) -> None:
+    for n in (8, 10, 20):
+        physics = _run_of(n)
+        pair = member_runs(physics, 2)
+        assert [(r.loss.pinn, r.loss.const) for r in pair] == [(True, True), (True, False)]
+        # the torque balance as asked: weight and sensor terms unchanged
+        assert (pair[1].loss.weighting, pair[1].loss.alpha, pair[1].loss.sensors) == \
+            (physics.loss.weighting, physics.loss.alpha, physics.loss.sensors)
+    assert [r.loss.name for r in member_runs(_run_of(10, "basic+const"), 2)] == \
         ["basic+const", "basic"]
+
+
+def test_with_at_most_7_samples_the_other_network_is_basic() -> None:
+    for n in (5, 7):
+        pair = member_runs(_run_of(n), 2)
+        assert [r.loss.name for r in pair] == ["basic+const+pinn", "basic"]
+        assert [r.seed for r in pair] == [3, 1003]
     basic = _run(loss="basic")
     pair = member_runs(basic, 2)
     assert [r.loss.name for r in pair] == ["basic", "basic"]
@@ -96,8 +110,10 @@ def test_pimbs_train_averages_two_networks_at_few_samples_only(tmp_path) -> None
 
     few = trained("--n-train", "5")
     assert few["architecture"]["layers"][1] == 16
-    assert [m["loss"] for m in few["metrics"]["members"]] == ["basic+const+pinn", "basic+pinn"]
-    # without a prior both physics networks fit sensor terms, reported as their mean
+    assert [m["loss"] for m in few["metrics"]["members"]] == ["basic+const+pinn", "basic"]
+    assert [m["loss"] for m in trained("--n-train", "10")["metrics"]["members"]] == \
+        ["basic+const+pinn", "basic+pinn"]
+    # without a prior the physics network's sensor terms are kept beside a Basic one
     assert trained("--n-train", "5", "--no-prior")["metrics"]["sensor_terms"] is not None
     assert [m["loss"] for m in trained("--n-train", "10", "--loss", "basic")["metrics"]
             ["members"]] == ["basic", "basic"]

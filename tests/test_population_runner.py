@@ -166,9 +166,9 @@ def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
     basic = parse_method("se:basic~exp!members")
     plain = parse_method("se:basic~exp")
     assert basic.members and not plain.members
-    jobs = [runner.Job(arm, 5, 0, default), runner.Job(arm, 5, 0, basic),
-            runner.Job(arm, 5, 0, plain)]
-    rows = split(_samples(1), 5, 0)
+    jobs = [runner.Job(arm, 10, 0, default), runner.Job(arm, 10, 0, basic),
+            runner.Job(arm, 10, 0, plain)]
+    rows = split(_samples(1), 10, 0)
     physics = member_runs(Run(*rows, default.loss, 0, True, default.structure), 2)
     basics = member_runs(Run(*rows, basic.loss, 0, True, basic.structure), 2)
     results = runner._train_once(jobs, [physics, basics, basics[:1]], OPTIONS)
@@ -177,3 +177,13 @@ def test_members_jobs_train_their_networks_once_and_merge(monkeypatch):
     assert results[2].eval_loss == results[1].members[0]["eval_loss"]
     assert results[0].eval_loss != results[1].eval_loss
     assert results[1].eval_loss not in {m["eval_loss"] for m in results[1].members}
+    # at 5 samples the physics network's partner is Basic: the same network as Basic's
+    # second, trained once
+    trained.clear()
+    rows = split(_samples(1), 5, 0)
+    physics = member_runs(Run(*rows, default.loss, 0, True, default.structure), 2)
+    basics = member_runs(Run(*rows, basic.loss, 0, True, basic.structure), 2)
+    five = [runner.Job(arm, 5, 0, default), runner.Job(arm, 5, 0, basic)]
+    results = runner._train_once(five, [physics, basics], OPTIONS)
+    assert trained == [1, 2]
+    assert results[0].members[1]["eval_loss"] == results[1].members[1]["eval_loss"]
