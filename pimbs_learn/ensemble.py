@@ -48,7 +48,7 @@ def partner_loss(run: Run) -> LossConfig:
 
     Beside a run with the torque balance and more than :data:`BASIC_PARTNER_UP_TO` samples
     they keep the balance and leave out the home pose: nothing in the rows tells whether
-    the home pose holds (§22), so the mean keeps half of it. With fewer samples, or beside
+    the home pose holds (§22), so the mean keeps half of it. With at most that many, or beside
     a run without the torque balance, they are Basic (Basic then stays the same size).
     """
     if run.loss.pinn and run.train.n_samples > BASIC_PARTNER_UP_TO:
