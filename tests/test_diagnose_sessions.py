@@ -53,3 +53,19 @@ def test_a_session_homed_anew_is_no_physics(tmp_path, conceal, named):
     assert [e["name"] for e in result["effects"]] == named, result["effects"]
     assert result["ambiguous"] == [] and result["unexplained"] == [], result["unexplained"]
     assert result["residual"]["consistent_with_noise"]
+
+
+def test_the_noise_estimate_of_two_sessions_ignores_their_homing(tmp_path):
+    """The sensors' noise levels that weigh every length are estimated with each session's
+    own length constant: a second session homed 3 mm off must not read as 20 N of
+    loadcell noise (it did when the estimate held one constant for both)."""
+    noise = {}
+    for shift in (0.0, 0.003):
+        folder = tmp_path / f"shift{shift}"
+        folder.mkdir()
+        reals, refs = _sessions(folder, [], shift)
+        result, _ = diagnose(reals, refs, robot=ROBOT)
+        noise[shift] = result["model"]["noise_estimate"]
+    assert noise[0.003]["tension_N"] == pytest.approx(noise[0.0]["tension_N"], rel=0.05)
+    assert noise[0.003]["length_m"] == pytest.approx(noise[0.0]["length_m"], rel=0.05)
+    assert noise[0.003]["tension_N"] < 1.0  # the simulated loadcells' noise is 0.3 N

@@ -233,7 +233,9 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)
-    first = make(degrees[len(degrees) // 2], start, 1)
+    # the noise levels are estimated with each recording's own length constant, as every
+    # fit holds them: one constant over sessions homed apart reads their shift as noise
+    first = make(degrees[len(degrees) // 2], start)
     for data in (real, ref):
         if data is not None:
             data.len_weight, noise = length_weights(first, data)
