@@ -91,13 +91,16 @@ from pimbs_learn.diagnosis.model import EFFECTS  # noqa: E402
 # at, a fourth of arms no diagnosis had seen: seeds 120-199 (``--seed0 120`` and ``--seed0
 # 160``, 40 arms each, drawn for the learning work; diagnose each population with
 # ``--split judge4``: the seeds it holds are judged). After the fourth, a fifth: seeds
-# 200-245 (``--arms 40 --seed0 200``, which drew 46), for the pose designer's changes.
+# 200-245 (``--arms 40 --seed0 200``, which drew 46), for the pose designer's changes. After
+# the fifth, a sixth: seeds 246-285 (``--arms 40 --seed0 246``), for the noise estimate of
+# several recordings.
 SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge": [s for s in range(41, 80) if s % 2 == 1],
           "judge2": [s for s in range(1, 40) if s % 2 == 1],
           "judge3": list(range(80, 120)),
           "judge4": list(range(120, 200)),
-          "judge5": list(range(200, 246))}
+          "judge5": list(range(200, 246)),
+          "judge6": list(range(246, 286))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
