@@ -17,8 +17,8 @@ from pimbs_learn.train import train, train_runs
 OPTS = TrainOptions(epochs=40, hidden=16, dtype=__import__("torch").float64)
 
 
-def _run(structure: str = SERIES_ELASTIC, loss: str = "basic+const+pinn") -> Run:
-    return Run(synthetic_samples(5, seed=1), synthetic_samples(40, seed=98),
+def _run(structure: str = SERIES_ELASTIC, loss: str = "basic+const+pinn", n: int = 5) -> Run:
+    return Run(synthetic_samples(n, seed=1), synthetic_samples(40, seed=98),
                LossConfig.parse(loss, 1.0, "auto", sensors="pinn" in loss), seed=3,
                structure=structure)
 
@@ -60,27 +60,22 @@ def test_members_follow_the_training_set_size() -> None:
     assert members_for(21) == 1 and members_for(30) == 1
 
 
-def _run_of(n: int, loss: str = "basic+const+pinn") -> Run:
-    return Run(synthetic_samples(n, seed=1), synthetic_samples(40, seed=98),
-               LossConfig.parse(loss, 1.0, "auto", sensors="pinn" in loss), seed=3)
-
-
 def test_beside_a_physics_run_of_8_to_20_samples_the_other_leaves_out_only_the_home_pose(
 ) -> None:
     for n in (8, 10, 20):
-        physics = _run_of(n)
+        physics = _run(n=n)
         pair = member_runs(physics, 2)
         assert [(r.loss.pinn, r.loss.const) for r in pair] == [(True, True), (True, False)]
         # the torque balance as asked: weight and sensor terms unchanged
         assert (pair[1].loss.weighting, pair[1].loss.alpha, pair[1].loss.sensors) == \
             (physics.loss.weighting, physics.loss.alpha, physics.loss.sensors)
-    assert [r.loss.name for r in member_runs(_run_of(10, "basic+const"), 2)] == \
+    assert [r.loss.name for r in member_runs(_run(loss="basic+const", n=10), 2)] == \
         ["basic+const", "basic"]
 
 
 def test_with_at_most_7_samples_the_other_network_is_basic() -> None:
     for n in (5, 7):
-        pair = member_runs(_run_of(n), 2)
+        pair = member_runs(_run(n=n), 2)
         assert [r.loss.name for r in pair] == ["basic+const+pinn", "basic"]
         assert [r.seed for r in pair] == [3, 1003]
     basic = _run(loss="basic")
