@@ -29,7 +29,7 @@ from pimbs_learn.losses import BASIC, HOME_POSE_UP_TO, LossConfig
 from pimbs_learn.run import Run, TrainResult
 
 # Runs of at most this many training samples train two networks: where the default keeps
-# L_const, whose hedge the second network is (the regimes of 5 and 10 samples; §22).
+# L_const, whose hedge the second network is (the regimes of 5 and 10 samples; §22, §24).
 MEMBERS_UP_TO = HOME_POSE_UP_TO
 # Up to this many training samples (the 5-sample regime of the self-check's nearest-size
 # rule) the other network is Basic, not the physics without L_const (§19, §22, §24).

@@ -119,7 +119,9 @@ def _carried_link(arm: ArmModel, k: int) -> str | None:
     return None
 
 
-ORDER = ("link_mass", "elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
+# the order :func:`concealed` conceals the rest in (a link-mass change comes first, from
+# :func:`link_masses`)
+ORDER = ("elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
          "tension_offset", "thermal_drift")
 
 
