@@ -69,3 +69,30 @@ def test_the_noise_estimate_of_two_sessions_ignores_their_homing(tmp_path):
     assert noise[0.003]["tension_N"] == pytest.approx(noise[0.0]["tension_N"], rel=0.05)
     assert noise[0.003]["length_m"] == pytest.approx(noise[0.0]["length_m"], rel=0.05)
     assert noise[0.003]["tension_N"] < 1.0  # the simulated loadcells' noise is 0.3 N
+
+
+def test_a_constant_between_sessions_is_not_left_as_structure():
+    """Each session zeroes its loadcells and homes its motors at its start, and two sessions
+    seldom share loads and temperatures: a residual that differs between them by a
+    constant would read as a dependence on temperature. The test of what is left holds a
+    constant per recording in both of its models; within a session, a residual that
+    follows the temperature is still structure."""
+    from pimbs_learn.diagnosis.leftover import _baseline, _group_tests, _groups
+    from pimbs_learn.diagnosis.model import Samples
+
+    rng = np.random.default_rng(0)
+    n, m = 130, 4
+    session = (np.arange(n) >= 100).astype(int)
+    temperature = np.where(session == 1, 45.0, 30.0)[:, None] + rng.normal(0, 1.0, (n, m))
+    data = Samples(theta=rng.uniform(-1, 1, (n, 2)), tension=np.zeros((n, m)),
+                   length=np.zeros((n, m)), temperature=temperature,
+                   approach=np.zeros((n, m)), tau=np.zeros((n, 2)),
+                   time=np.where(session == 1, np.arange(n) - 100, np.arange(n)) * 4.0,
+                   sample=np.arange(n), session=session)
+    groups = _groups(data, ["j0", "j1"], True)
+    shifted = 0.5 * session + rng.normal(0, 0.05, n)
+    one = np.ones((n, 1))
+    assert _group_tests(shifted, groups, one)["temperature"][1] < 1e-10  # the old reading
+    assert _group_tests(shifted, groups, _baseline(data))["temperature"][1] > 1e-3
+    warm = shifted + 0.05 * (data.temperature.mean(1) - 30.0)
+    assert _group_tests(warm, groups, _baseline(data))["temperature"][1] < 1e-6

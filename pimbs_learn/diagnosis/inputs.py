@@ -22,6 +22,7 @@ from pimbs_learn.diagnosis.model import (
     apply_effects,
     evaluate,
     fit_schema,
+    residuals,
     schema_jacobian,
     sensor_units,
 )
@@ -201,6 +202,62 @@ def stretch_weights(kappa: np.ndarray, tension: np.ndarray, sigma_f: float, sigm
     return 1.0 / np.sqrt(1.0 + ratio**2)
 
 
+BRANCH_ROUNDS = 3  # refits of the sensors with the branches the lengths tell
+BRANCH_FIT = 2.5  # a branch's length within this many of the fit's σ, or the guess stays
+
+
+def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
+    """Read from the lengths the loadcell branches that the readings' changes cannot tell;
+    returns the hysteresis h they were read with and the share of entries the changes
+    could not tell.
+
+    A branch is read from the change of the reading into the row. That change is the
+    tension's change plus, where the branch flipped, a jump of 2h against it: a change
+    smaller than 2h past ``BRANCH_DEADBAND`` may come from a flip or from none. In a
+    narrow session at the floors about half the entries are such, and a quarter to a
+    third of their guesses are wrong (the simulator's true branches known;
+    docs/diagnosis-notebook.md); a wrong one leaves 2h that follows the direction the
+    wire last moved, which an offset, a stiffness change or too small a hysteresis then
+    fits. The length says which: the muscle's stretch follows its true tension, so the
+    two branches' tensions ``y ± h`` predict lengths that differ by about
+    ``2h·|κ|/(1 + f)``, hundreds of micrometres at a floor against an encoder's few (there
+    under 1 % stay wrong). It is read with the physics every later fit uses (the chosen
+    schema degree): on MuJoCo arms a lower degree's schema error was read as branches.
+    Each doubtful entry takes the branch whose length fits the sensors' fit better, if
+    that one fits within ``BRANCH_FIT`` of the fit's noise (where the stretch law does not
+    hold as modelled the guess stays), and the sensors are refitted with them
+    (``BRANCH_ROUNDS``) — unless the torques, whose balance needs no stretch law, fit worse
+    with them: then the lengths are not trusted to tell, and the guesses stay."""
+    if data.branch is None or data.prev_tension is None:
+        return 0.0, 0.0
+    change = np.abs(data.tension - data.prev_tension)
+    units = sensor_units(data)
+    at = [u.effect for u in units].index("loadcell_hysteresis")
+    fit = fit_effects(physics, data, units)
+    doubt = np.zeros(change.shape, bool)
+    for _ in range(BRANCH_ROUNDS):
+        doubt = change < 2.0 * abs(float(fit.params[at])) + BRANCH_DEADBAND
+        if not doubt.any():
+            break
+        sq = []
+        for b in (1.0, -1.0):
+            trial = replace(data, branch=np.where(doubt, b, data.branch))
+            state = apply_effects(physics, trial, units, fit.params)
+            sq.append((residuals(physics, state, trial, fit.weights)[0] / fit.sigma_len) ** 2)
+        # the better branch's length within the fit's noise: else the stretch law does not
+        # hold there as modelled, and the length tells nothing
+        clear = doubt & (np.minimum(sq[0], sq[1]) <= BRANCH_FIT**2)
+        told = np.where(clear, np.where(sq[0] <= sq[1], 1.0, -1.0), data.branch)
+        if np.array_equal(told, data.branch):
+            break
+        new = fit_effects(physics, replace(data, branch=told), units)
+        # the torques need no stretch law: branches that fit them worse are not told
+        if np.sum(np.log(new.sigma_tau)) > np.sum(np.log(fit.sigma_tau)):
+            break
+        data.branch, fit = told, new
+    return abs(float(fit.params[at])), float(np.mean(doubt))
+
+
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:
     options = {1: [3, 4, 5, 6, 7], 2: [3, 4, 5, 6], 3: [3, 4, 5], 4: [3, 4, 5], 5: [3, 4]}.get(
         n_joints, [2, 3])
@@ -256,6 +313,12 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
     info["kappa"] = start.tolist()
     info["schema_degree"] = degree
     physics = make(degree, start)
+    for data in (real, ref):
+        if data is not None:
+            h, share = tell_branches(physics, data)
+            if data is real and share:
+                info["loadcell_branches_from_lengths"] = {"doubtful_share": share,
+                                                          "hysteresis_N": h}
     info["schema"] = "learned from the real recording"
     if ref is not None:
         tied = tie_to_reference(physics, real, ref)

@@ -13,7 +13,8 @@ Two things look like structure and are not missing physics. The model's own appr
 reference, the same test on the clean simulation of the same poses measures them, and only
 structure clearly stronger than the reference's (``REFERENCE_MARGIN`` × its F) counts.
 A factor must also explain at least ``MIN_SHARE`` of
-the residual variance (partial R²). Length residuals are never tested against the pose (a
+the residual variance (partial R²). Recordings diagnosed together each keep a constant of
+their own (``_baseline``). Length residuals are never tested against the pose (a
 routing the schema cannot follow is the schema's business). Measured tensions are not
 used as regressors: their own noise is
 in the torque residual, so they would always "explain" some of it.
@@ -74,10 +75,22 @@ def _channels(r_len: np.ndarray, r_tau: np.ndarray, joints: list[str], muscles: 
             + [(f"length of {name}", r_len[:, j], False, "m") for j, name in enumerate(muscles)])
 
 
-def _group_tests(y: np.ndarray, groups: dict[str, np.ndarray]) -> dict[str, tuple]:
-    one = np.ones((len(y), 1))
-    full = np.hstack([one, *groups.values()])
-    return {name: _f_test(y, full, np.hstack([one, *(v for k, v in groups.items()
+def _baseline(data: Samples) -> np.ndarray:
+    """Columns both models of every test hold: the constant, and one per recording after
+    the first. Each session zeroes its loadcells and homes its motors at its start, so a
+    residual that differs between recordings by a constant is not missing physics; with
+    sessions of different loads and temperatures it would read as a dependence on them."""
+    cols = [np.ones((data.n, 1))]
+    if data.session is not None:
+        cols += [(data.session == s)[:, None] - np.mean(data.session == s)
+                 for s in np.unique(data.session)[1:]]
+    return np.hstack(cols)
+
+
+def _group_tests(y: np.ndarray, groups: dict[str, np.ndarray], base: np.ndarray
+                 ) -> dict[str, tuple]:
+    full = np.hstack([base, *groups.values()])
+    return {name: _f_test(y, full, np.hstack([base, *(v for k, v in groups.items()
                                                       if k != name)]))
             for name in groups}
 
@@ -95,8 +108,9 @@ def leftover(physics: Physics, fit: Fit, data: Samples, joints: list[str],
     threshold = P_VALUE / (len(channels) * n_groups)
     found = []
     for c, (label, y, pose, unit) in enumerate(channels):
-        tests = _group_tests(y, _groups(data, joints, pose))
-        ref_tests = (_group_tests(ref_channels[c][1], _groups(reference, joints, pose))
+        tests = _group_tests(y, _groups(data, joints, pose), _baseline(data))
+        ref_tests = (_group_tests(ref_channels[c][1], _groups(reference, joints, pose),
+                                  _baseline(reference))
                      if ref_channels else {})
         where = [{"factor": name, "F": f, "p_value": p, "share": share,
                   "F_reference": ref_tests[name][0] if name in ref_tests else None}
