@@ -295,3 +295,29 @@ def test_a_gain_sliding_along_a_mass_is_either_or_on_a_drawn_arm(tmp_path):
     # the report says why a ratio past the naming threshold still does not name it
     text = "\n".join(ambiguity_text(result))
     assert "less certain" in text and "barely holds" in text, text
+
+
+def test_the_designer_counts_no_shift_the_new_sessions_homing_takes():
+    """Each session homes its motors anew, so the next one refits a length constant per
+    muscle: a difference between two explanations that is the same in every chosen row's
+    length (a loadcell gain's stretch with every muscle held high) tells them nothing, and
+    the designer must not count it. One that varies from row to row still does, and so
+    does a torque."""
+    from pimbs_learn.diagnosis.design import _Test
+
+    rows, muscles, joints = 6, 2, 1
+    shift = np.zeros((rows, muscles + joints))
+    shift[:, 0] = 3.0  # whitened: three noise levels in the first muscle's length, every row
+    varied = shift.copy()
+    varied[::2, 0] = 0.0
+    torque = np.zeros_like(shift)
+    torque[:, muscles] = 3.0
+    gains = []
+    for e in (shift, varied, torque):
+        test = object.__new__(_Test)
+        test._set(e, np.zeros((rows, muscles + joints, 0)), np.zeros((0, 0)),
+                  np.ones((rows, muscles)))
+        gains.append(test.gain([0, 1, 2, 3, 4])[5])
+    assert gains[0] == pytest.approx(0.0, abs=1e-6)
+    assert gains[1] == pytest.approx(6 * 9.0 / 4, rel=1e-3)  # 3 of 6 rows off by 3: ± 1.5
+    assert gains[2] == pytest.approx(6 * 9.0, rel=1e-6)

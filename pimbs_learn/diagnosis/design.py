@@ -19,8 +19,12 @@ fitted models; each predicts what the arm would report at any pose:
    where ``e_i`` is B's residual on A's prediction (minus B's residual on its own
    prediction, so what the model gets wrong either way — the description's routing against
    the real arm's — cancels), ``J_i`` its derivative in B's parameters and ``I_B`` the
-   information the first recording already holds on them: B may refit, as it will. The
-   design maximises ``min(Δ_AB, Δ_BA)`` over every rival, greedily, pose by pose.
+   information the first recording already holds on them: B may refit, as it will. So
+   may the new session's length constant per muscle (each session homes its motors
+   anew; the first recording holds nothing of it): a difference that is the same in every
+   chosen row's length — a loadcell gain's stretch with every muscle held high — tells
+   nothing. The design maximises ``min(Δ_AB, Δ_BA)`` over every rival, greedily, pose by
+   pose.
 
 Predictions use the model's routing and the description's link for a link mass (the body a
 joint carries; the proximal shares the diagnosis fits are not simulated), so the expected
@@ -228,12 +232,26 @@ class _Test:
             p = rival.params.copy()
             p[i] += FD_STEP[u.effect]
             cols.append((_rows(described, model, other, p) - base) / FD_STEP[u.effect])
-        self.j = np.stack(cols, axis=2) if cols else np.zeros((*self.e.shape, 0))  # (R, C, P)
+        j = np.stack(cols, axis=2) if cols else np.zeros((*self.e.shape, 0))  # (R, C, P)
         sigma = (rival.sigma_len, rival.sigma_tau)
         r0 = _whitened(physics, data, rival.units, rival.params, sigma)
         old = np.stack([fd_column(physics, data, rival, u, r0, sigma) for u in rival.units],
                        1) if rival.units else np.zeros((len(r0), 0))
-        self.info = old.T @ old
+        w = (np.ones((len(j), rival.sigma_len.size)) if other.len_weight is None
+             else other.len_weight)
+        self._set(self.e, j, old.T @ old, w / rival.sigma_len)
+
+    def _set(self, e: np.ndarray, j: np.ndarray, info: np.ndarray, homing: np.ndarray):
+        """``e`` (R, C) and ``j`` (R, C, P) as above, ``info`` (P, P); ``homing`` (R, M):
+        the whitened length channels' scale. The new session homes its motors anew, so a
+        length constant of its own per muscle (the first M channels), of which the first
+        recording says nothing, is refitted with the rival."""
+        m = homing.shape[1]
+        const = np.zeros((*e.shape, m))
+        const[:, np.arange(m), np.arange(m)] = -homing
+        self.e, self.j = e, np.concatenate([j, const], axis=2)
+        self.info = np.zeros((j.shape[2] + m,) * 2)
+        self.info[:j.shape[2], :j.shape[2]] = info
         self.ee = np.einsum("rc,rc->r", self.e, self.e)
         self.je = np.einsum("rcp,rc->rp", self.j, self.e)
         self.jj = np.einsum("rcp,rcq->rpq", self.j, self.j)
