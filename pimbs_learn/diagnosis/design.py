@@ -241,7 +241,8 @@ class _Test:
              else other.len_weight)
         self._set(self.e, j, old.T @ old, w / rival.sigma_len)
 
-    def _set(self, e: np.ndarray, j: np.ndarray, info: np.ndarray, homing: np.ndarray):
+    def _set(self, e: np.ndarray, j: np.ndarray, info: np.ndarray, homing: np.ndarray
+             ) -> None:
         """``e`` (R, C) and ``j`` (R, C, P) as above, ``info`` (P, P); ``homing`` (R, M):
         the whitened length channels' scale. The new session homes its motors anew, so a
         length constant of its own per muscle (the first M channels), of which the first
