@@ -118,6 +118,34 @@ def _geometric_start(problem: _Problem, theta: np.ndarray, lo, hi) -> np.ndarray
     return theta
 
 
+KINK_PROBE = 1e-6  # rad: how far each joint is moved to see the energy rise at a kink
+
+
+def _kink_minimum(problem: _Problem, state, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether the energy rises whichever way any free joint moves, and down the gradient:
+    a rest position at a kink of the energy, where its gradient never vanishes.
+
+    The energy is not smooth everywhere: where a wire passes through its joint's axis (two
+    of its via points meet) its length has a corner in the joint angle, its moment arm
+    flipping sign. A pose resting on such a corner is an equilibrium (zero lies between the
+    one-sided torques), yet Newton stalls there with a residual of newton-metres: on the
+    acme arm's elbow, where the flexor's and the biceps' moment arms flip between −29 and
+    +29 mm, the one-sided torques were −8.1 and +0.56 N·m, and a collection stopped there
+    as if the arm had no rest position. Probed both ways by ``KINK_PROBE``."""
+    theta, e0 = state.theta, state.energy
+    tol = 1e-12 * (1.0 + abs(e0))
+    norm = np.linalg.norm(state.grad)
+    moves = [np.eye(len(theta))[k] * d for k in range(len(theta))
+             for d in (-KINK_PROBE, KINK_PROBE)]
+    if norm > 0:
+        moves.append(-KINK_PROBE * state.grad / norm)
+    for move in moves:
+        trial = np.clip(theta + move, lo, hi)
+        if not np.array_equal(trial, theta) and problem.evaluate(trial).energy < e0 - tol:
+            return False
+    return True
+
+
 def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: int = 100,
                       atol: float = 1e-9) -> Equilibrium:
     """Projected-Newton minimisation of the static energy; see ``ArmModel.equilibrium``."""
@@ -164,6 +192,8 @@ def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: in
             break
         state = trial
 
+    if not converged and _kink_minimum(problem, state, lo, hi):
+        converged = True
     f, h = state.f, state.h
     length = np.where(is_length, command, h - arm.stretch(f))
     return Equilibrium(theta=state.theta, tension=f, length=length, converged=converged,

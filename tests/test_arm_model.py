@@ -260,3 +260,35 @@ def test_via_points_that_meet_give_numbers_not_warnings():
     np.testing.assert_allclose(kin.jacobian[meet], (before[meet] + after[meet]) / 2, atol=1e-6)
     others = np.setdiff1d(np.arange(arm.n_muscles), meet)
     np.testing.assert_allclose(kin.jacobian[others], after[others], atol=1e-6)
+
+
+def test_an_arm_resting_where_a_wire_crosses_its_joint_axis_is_at_rest():
+    """Where a wire passes through its joint's axis, its length has a corner in the joint
+    angle (the moment arm flips sign), and so has the static energy: the gradient never
+    vanishes at a rest position there. The commands a collection sent the acme arm (its
+    elbow offset by 0.03 rad) come to rest on the elbow flexor's and the biceps' corner,
+    and the solve must say so instead of "no rest position", which stopped the collection
+    at its 52nd pose."""
+    from pimbs_arm.equilibrium import _mode_mask, _Problem
+
+    arm = ArmModel.load(ACME)
+    modes = ["tension", "length", "tension", "length", "tension", "tension", "length"]
+    values = np.array([103.0, -0.004473078693051081, 81.75, -0.0006258628624022089, 64.75,
+                       55.5, -0.028596410492406812])
+    eq = arm.equilibrium(modes, values, theta0=np.array([0.0838269, 0.1009200, -1.0241009]))
+    assert eq.converged and eq.residual > 0.1  # a corner: no zero gradient to find
+    step = np.array([0.0, 0.0, 1e-6])
+    slope_below = (arm.h_geom(eq.theta) - arm.h_geom(eq.theta - step)) / 1e-6
+    slope_above = (arm.h_geom(eq.theta + step) - arm.h_geom(eq.theta)) / 1e-6
+    flips = [arm.muscles[j] for j in np.flatnonzero(slope_below * slope_above < 0)]
+    assert {"el_flexor", "biceps"} <= set(flips)
+    problem = _Problem(arm, _mode_mask(modes, arm.n_muscles), values)
+    rest = problem.evaluate(eq.theta).energy
+    for k in range(arm.n_joints):
+        for d in (-1e-5, 1e-5):
+            moved = eq.theta.copy()
+            moved[k] += d
+            assert problem.evaluate(moved).energy >= rest
+    # a pose off the corner is no rest position the probe would accept
+    off = problem.evaluate(eq.theta + np.array([0.0, 0.0, 1e-3]))
+    assert off.energy > rest
