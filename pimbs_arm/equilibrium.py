@@ -192,7 +192,10 @@ def solve_equilibrium(arm: ArmModel, mode, command, theta0=None, *, max_iter: in
             break
         state = trial
 
-    if not converged and _kink_minimum(problem, state, lo, hi):
+    # a corner of the energy, with every wire within what it can carry (wires at 1e15 N
+    # against a joint limit are a minimum too, and no result)
+    if (not converged and np.all(np.abs(state.f) <= TENSION_SCALE_CAP * arm.f_max)
+            and _kink_minimum(problem, state, lo, hi)):
         converged = True
     f, h = state.f, state.h
     length = np.where(is_length, command, h - arm.stretch(f))
