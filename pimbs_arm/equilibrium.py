@@ -135,8 +135,7 @@ def _kink_minimum(problem: _Problem, state, lo: np.ndarray, hi: np.ndarray) -> b
     theta, e0 = state.theta, state.energy
     tol = 1e-12 * (1.0 + abs(e0))
     norm = np.linalg.norm(state.grad)
-    moves = [np.eye(len(theta))[k] * d for k in range(len(theta))
-             for d in (-KINK_PROBE, KINK_PROBE)]
+    moves = [d * axis for axis in np.eye(len(theta)) for d in (-KINK_PROBE, KINK_PROBE)]
     if norm > 0:
         moves.append(-KINK_PROBE * state.grad / norm)
     for move in moves:

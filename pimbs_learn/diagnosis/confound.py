@@ -54,6 +54,7 @@ from pimbs_learn.diagnosis.model import (
     Samples,
     Unit,
     evaluate,
+    hysteresis,
     units_of,
 )
 from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
@@ -204,12 +205,6 @@ def rival_unit_sets(physics: Physics, data: Samples, without: Fit, named: Candid
         if common and all(set(common) != set(s) for s in sets):
             sets.append(common)
     return sets
-
-
-def hysteresis(fit: Fit) -> float:
-    """The loadcells' fitted hysteresis h, N (0 where the fit has none)."""
-    return next((abs(float(p)) for u, p in zip(fit.units, fit.params, strict=True)
-                 if u.effect == "loadcell_hysteresis"), 0.0)
 
 
 def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:

@@ -40,7 +40,7 @@ import numpy as np
 from pimbs_arm.model import ArmModel
 from pimbs_arm.poses import PosePlan, atl_floor_range, feasible, plan_poses
 from pimbs_arm.poses_file import pose_plan_csv
-from pimbs_learn.diagnosis.confound import Verdict, hysteresis
+from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, stretch_weights
 from pimbs_learn.diagnosis.model import (
     SENSOR,
@@ -51,6 +51,7 @@ from pimbs_learn.diagnosis.model import (
     apply_effects,
     evaluate,
     fit_schema,
+    hysteresis,
 )
 from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
 from pimbs_sim.effects import T_REF, Effect, EffectSpecError

@@ -22,7 +22,7 @@ from pimbs_learn.diagnosis.model import (
     apply_effects,
     evaluate,
     fit_schema,
-    residuals,
+    hysteresis,
     schema_jacobian,
     sensor_units,
 )
@@ -232,18 +232,14 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
         return 0.0, 0.0
     change = np.abs(data.tension - data.prev_tension)
     units = sensor_units(data)
-    at = [u.effect for u in units].index("loadcell_hysteresis")
     fit = fit_effects(physics, data, units)
     doubt = np.zeros(change.shape, bool)
     for _ in range(BRANCH_ROUNDS):
-        doubt = change < 2.0 * abs(float(fit.params[at])) + BRANCH_DEADBAND
+        doubt = change < 2.0 * hysteresis(fit) + BRANCH_DEADBAND
         if not doubt.any():
             break
-        sq = []
-        for b in (1.0, -1.0):
-            trial = replace(data, branch=np.where(doubt, b, data.branch))
-            state = apply_effects(physics, trial, units, fit.params)
-            sq.append((residuals(physics, state, trial, fit.weights)[0] / fit.sigma_len) ** 2)
+        sq = [(evaluate(physics, fit, replace(data, branch=np.where(doubt, b, data.branch)))[0]
+               / fit.sigma_len) ** 2 for b in (1.0, -1.0)]
         # the better branch's length within the fit's noise: else the stretch law does not
         # hold there as modelled, and the length tells nothing
         clear = doubt & (np.minimum(sq[0], sq[1]) <= BRANCH_FIT**2)
@@ -255,7 +251,7 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
         if np.sum(np.log(new.sigma_tau)) > np.sum(np.log(fit.sigma_tau)):
             break
         data.branch, fit = told, new
-    return abs(float(fit.params[at])), float(np.mean(doubt))
+    return hysteresis(fit), float(np.mean(doubt))
 
 
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:

@@ -107,10 +107,12 @@ def leftover(physics: Physics, fit: Fit, data: Samples, joints: list[str],
     n_groups = len(_groups(data, joints, True))
     threshold = P_VALUE / (len(channels) * n_groups)
     found = []
+    base = _baseline(data)
+    ref_base = None if ref_channels is None else _baseline(reference)
     for c, (label, y, pose, unit) in enumerate(channels):
-        tests = _group_tests(y, _groups(data, joints, pose), _baseline(data))
+        tests = _group_tests(y, _groups(data, joints, pose), base)
         ref_tests = (_group_tests(ref_channels[c][1], _groups(reference, joints, pose),
-                                  _baseline(reference))
+                                  ref_base)
                      if ref_channels else {})
         where = [{"factor": name, "F": f, "p_value": p, "share": share,
                   "F_reference": ref_tests[name][0] if name in ref_tests else None}

@@ -382,6 +382,12 @@ class Fit:
         return replace(self, params=params)
 
 
+def hysteresis(fit: Fit) -> float:
+    """The loadcells' fitted hysteresis h, N (0 where the fit has none)."""
+    return next((abs(float(p)) for u, p in zip(fit.units, fit.params, strict=True)
+                 if u.effect == "loadcell_hysteresis"), 0.0)
+
+
 def evaluate(physics: Physics, fit: Fit, data: Samples, key=None
              ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals of ``data`` under a fit (its effect parameters and body schema)."""

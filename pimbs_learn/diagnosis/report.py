@@ -10,11 +10,17 @@ from pimbs_learn.diagnosis.confound import (
     PER_MUSCLE,
     RIDGE_SHARE,
     Verdict,
-    hysteresis,
 )
 from pimbs_learn.diagnosis.detect import detectable_text
 from pimbs_learn.diagnosis.leftover import leftover_text
-from pimbs_learn.diagnosis.model import Fit, Physics, Samples, apply_effects, schema_jacobian
+from pimbs_learn.diagnosis.model import (
+    Fit,
+    Physics,
+    Samples,
+    apply_effects,
+    hysteresis,
+    schema_jacobian,
+)
 from pimbs_learn.diagnosis.select import P_VALUE, Candidate
 
 
