@@ -230,23 +230,31 @@ def test_fitted_explanations_are_concealed_as_the_simulator_conceals_them(elbow)
     assert effects[0] is mass and len(effects) == 4  # the arm's physics before the loadcells'
 
 
-def test_a_heavier_upper_arm_is_simulated_as_the_one_fitted(tmp_path):
-    """The diagnosis fits a heavier upper arm as the forearm's unit (mass ×1.0) with its own
-    share of the shoulder's level of the gravity potential. The pose designer must simulate
-    that explanation, the upper arm ×1.4, or its poses separate another one."""
-    from pimbs_learn.diagnosis.design import _carried_link, link_masses
+def test_a_heavier_upper_arm_is_named_on_its_link_and_simulated_as_the_one_fitted(tmp_path):
+    """With the robot file each link's own gravity is known: a heavier upper arm is one
+    parameter on that link, its scale as concealed, and the pose designer simulates that
+    link. From a reference alone (no file) the fit spreads it over the forearm's subtree
+    and its share of the shoulder's level of the gravity potential; the designer must
+    still simulate the upper arm ×1.4, or its poses separate another explanation."""
+    from pimbs_learn.diagnosis.design import link_masses
+    from pimbs_learn.diagnosis.links import carried_link
 
     arm = ArmModel.load("two-link-4-muscle")
-    upper = _carried_link(arm, 0)
+    upper = carried_link(arm, 0)
     real, ref = _pair(tmp_path, arm, 120, [f"link_mass:1.4,link={upper}"])
-    result, inner = diagnose(real, ref, robot="two-link-4-muscle", design_poses=0)
-    assert [e["name"] for e in result["effects"]] == ["link_mass"], result["effects"]
-    final = inner["final"]
     theta = np.random.default_rng(0).uniform(-0.5, 0.5, (50, arm.n_joints))
-    scales = {e.link: e.magnitude for e in link_masses(final.units, final.params, arm,
-                                                       inner["physics"], theta)}
-    assert scales[upper] == pytest.approx(1.4, abs=0.03), scales
-    assert all(abs(s - 1.0) < 0.03 for link, s in scales.items() if link != upper), scales
+    for robot in ("two-link-4-muscle", None):
+        result, inner = diagnose(real, ref, robot=robot, design_poses=0)
+        assert [e["name"] for e in result["effects"]] == ["link_mass"], result["effects"]
+        params = result["effects"][0]["parameters"]
+        if robot:
+            assert list(params) == [f"link {upper}"], params
+            assert params[f"link {upper}"]["mass_scale"] == pytest.approx(1.4, abs=0.02)
+        final = inner["final"]
+        scales = {e.link: e.magnitude for e in link_masses(final.units, final.params, arm,
+                                                           inner["physics"], theta)}
+        assert scales[upper] == pytest.approx(1.4, abs=0.03), (robot, scales)
+        assert all(abs(s - 1.0) < 0.03 for link, s in scales.items() if link != upper), scales
 
 
 def test_separating_poses_are_held_in_a_gentle_order():

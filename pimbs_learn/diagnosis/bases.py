@@ -121,15 +121,18 @@ class GravityFunction:
             self.basis = TrigBasis(n)
         else:
             self.basis = PolyBasis(n, 4, np.zeros(n), np.ones(n))
-        grads = self.basis.gradients(theta)  # (B, P, N)
-        a = grads.transpose(0, 2, 1).reshape(-1, self.basis.size)
-        b = tau.reshape(-1)
+        self.ridge = ridge
+        self.coef = self.project(theta, tau)
+        self.rms_error = float(np.sqrt(np.mean((self.torque(theta) - tau) ** 2)))
+        self.rms_tau = float(np.sqrt(np.mean(tau**2)))
+
+    def project(self, theta: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Coefficients in this basis of the torque field sampled as (θ, τ): the model's
+        gravity, or one link's share of it (``links.link_torques``)."""
+        a = self._gradients(theta).transpose(0, 2, 1).reshape(-1, self.basis.size)
         ata = a.T @ a
-        self.coef = np.linalg.solve(ata + ridge * np.trace(ata) / len(ata) * np.eye(len(ata)),
-                                    a.T @ b)
-        fit = a @ self.coef
-        self.rms_error = float(np.sqrt(np.mean((fit - b) ** 2)))
-        self.rms_tau = float(np.sqrt(np.mean(b**2)))
+        return np.linalg.solve(ata + self.ridge * np.trace(ata) / len(ata) * np.eye(len(ata)),
+                               a.T @ np.asarray(tau, float).reshape(-1))
 
     def _gradients(self, theta: np.ndarray) -> np.ndarray:
         """Basis gradients, memoised: the fits evaluate many coefficients at fixed poses."""

@@ -26,9 +26,9 @@ fitted models; each predicts what the arm would report at any pose:
    nothing. The design maximises ``min(Δ_AB, Δ_BA)`` over every rival, greedily, pose by
    pose.
 
-Predictions use the model's routing and the description's link for a link mass (the body a
-joint carries; the proximal shares the diagnosis fits are not simulated), so the expected
-likelihood ratio is a guide; the combined diagnosis is the judge.
+Predictions use the model's routing and, for a link mass, the file's links as the diagnosis
+fitted them (``link_masses``), so the expected likelihood ratio is a guide; the combined
+diagnosis is the judge.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from pimbs_arm.poses import PosePlan, atl_floor_range, feasible, plan_poses
 from pimbs_arm.poses_file import pose_plan_csv
 from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, stretch_weights
+from pimbs_learn.diagnosis.links import link_torques
 from pimbs_learn.diagnosis.model import (
     SENSOR,
     Fit,
@@ -54,7 +55,7 @@ from pimbs_learn.diagnosis.model import (
     hysteresis,
 )
 from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
-from pimbs_sim.effects import T_REF, Effect, EffectSpecError
+from pimbs_sim.effects import T_REF, Effect
 from pimbs_sim.simulate import simulate
 
 POOL = 120          # candidate poses, each with three tension floors
@@ -104,69 +105,40 @@ def pool_within(arm: ArmModel, theta: np.ndarray, n: int = POOL, seed: int = POO
                     floors=floors_arr, drawn_floors=floors_arr, replaced=())
 
 
-def _carried_link(arm: ArmModel, k: int) -> str | None:
-    """The link joint ``k`` carries (None: the last link, the simulator's default)."""
-    if k == arm.n_joints - 1:
-        return None
-    if arm.backend.kind == "mjcf":
-        from pimbs_calibration.mjcf import joint_names
-
-        m = arm.backend.mj_model
-        body = int(m.jnt_bodyid[joint_names(m).index(arm.joints[k])])
-        return m.body(body).name
-    import pinocchio as pin
-
-    model = arm._model
-    jid = model.getJointId(arm.joints[k])
-    for frame in model.frames:
-        if frame.type == pin.FrameType.BODY and frame.parentJoint == jid:
-            return frame.name
-    return None
-
-
 # the order :func:`concealed` conceals the rest in (a link-mass change comes first, from
 # :func:`link_masses`)
 ORDER = ("elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
          "tension_offset", "thermal_drift")
 
 
-MASS_STEP = 0.01  # a link's mass scale step for the gravity torque's derivative in it
-
-
 def link_masses(units: list[Unit], params: np.ndarray, arm: ArmModel, physics: Physics,
                 theta: np.ndarray) -> tuple[Effect, ...]:
-    """The fitted link-mass change as the simulator conceals it: one mass scale per link a
-    joint carries, the least-squares match at the poses ``theta`` to the gravity torque
-    the fit adds.
+    """The fitted link-mass change as the simulator conceals it: one mass scale per link.
 
-    Why: the fit spreads a mass change over the links beyond a joint (one scale) and its
-    own share of each proximal level of the gravity potential; a heavier upper arm is the
-    latter on a forearm's unit. Scaling only the link the unit's joint carries would
-    simulate another explanation than the one fitted, and the poses would be chosen to
-    separate that one."""
-    fit = [(u, p) for u, p in zip(units, params, strict=True) if u.effect == "link_mass"]
-    if not fit:
-        return ()
+    A unit on one of the robot file's links is that link's scale. Without the file's links
+    the fit spreads a mass change over the links beyond a joint (one scale) and its own
+    share of each proximal level of the gravity potential (a heavier upper arm is the
+    latter on a forearm's unit); it is matched, by least squares at the poses ``theta``,
+    to one scale per link the joints carry. Scaling only the link the unit's joint carries
+    would simulate another explanation than the one fitted, and the poses would be chosen
+    to separate that one."""
+    fit = [(u, float(p)) for u, p in zip(units, params, strict=True) if u.effect == "link_mass"]
+    own = tuple(Effect("link_mass", max(1.0 + p, 1e-3), link=physics.links[u.index])
+                for u, p in fit if u.part == "link")
     extra = np.zeros(physics.gravity.coef.shape)
     for u, p in fit:
-        extra += float(p) * (physics.gravity.distal_split(u.index)[0] if u.part == "distal"
-                             else physics.gravity.level(int(u.part.removeprefix("level"))))
+        if u.part != "link":
+            extra += p * (physics.gravity.distal_split(u.index)[0] if u.part == "distal"
+                          else physics.gravity.level(int(u.part.removeprefix("level"))))
+    if not np.any(extra):
+        return own
+    names, torques = link_torques(arm, theta)
+    if not names:
+        return own
     target = physics.gravity.torque(theta, extra)
-    base = arm.gravity_torque(theta)
-    links, columns = [], []
-    for k in range(arm.n_joints):
-        link = _carried_link(arm, k)
-        try:
-            heavier = Effect("link_mass", 1.0 + MASS_STEP, link=link).physics(arm)
-        except EffectSpecError:  # a joint that carries no mass of its own
-            continue
-        links.append(link)
-        columns.append(((heavier.gravity_torque(theta) - base) / MASS_STEP).ravel())
-    if not columns:
-        return ()
-    scale, *_ = np.linalg.lstsq(np.stack(columns, 1), target.ravel(), rcond=None)
-    return tuple(Effect("link_mass", max(1.0 + float(s), 1e-3), link=link)
-                 for link, s in zip(links, scale, strict=True) if abs(s) > 1e-6)
+    scale, *_ = np.linalg.lstsq(torques.reshape(len(names), -1).T, target.ravel(), rcond=None)
+    return own + tuple(Effect("link_mass", max(1.0 + float(s), 1e-3), link=link)
+                       for link, s in zip(names, scale, strict=True) if abs(s) > 1e-6)
 
 
 def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel,

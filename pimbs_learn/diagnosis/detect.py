@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, norm
 
-from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, units_of
+from pimbs_learn.diagnosis.model import EFFECTS, Fit, Physics, Samples, link_place, units_of
 from pimbs_learn.diagnosis.select import P_VALUE, _whitened, fd_column
 
 POWER = 0.9
@@ -51,7 +51,8 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
     out: dict = {}
     for effect in effects:
         sizes: list[tuple[float, str]] = []
-        for group in units_of(effect, data.theta.shape[1], data.tension.shape[1]):
+        for group in units_of(effect, data.theta.shape[1], data.tension.shape[1],
+                              len(physics.links)):
             unit = group[0]
             if unit in fit.units or unit.part == "common":
                 continue
@@ -65,7 +66,7 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
             info = float(col @ col)
             if info <= 0:
                 continue
-            name = (f"links beyond {joints[unit.index]}" if effect == "link_mass"
+            name = (link_place(physics, unit, joints) if effect == "link_mass"
                     else joints[unit.index] if effect == "joint_offset"
                     else muscles[unit.index])
             sizes.append((factor / np.sqrt(info), name))

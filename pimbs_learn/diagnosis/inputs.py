@@ -262,14 +262,24 @@ def degrees_for(n_joints: int, n_rows: int) -> list[int]:
     return fits or [2]
 
 
-def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, dict]:
-    """Gravity function, elasticity and schema basis for the real recording."""
+def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
+                  ) -> tuple[Physics, dict]:
+    """Gravity function, elasticity and schema basis for the real recording; with the robot
+    description ``arm``, each link's own gravity too (a link mass is then one link's)."""
     real, ref = paired.real, paired.reference
     theta_all = real.theta if ref is None else np.vstack([real.theta, ref.theta])
     tau_all = real.tau if ref is None else np.vstack([real.tau, ref.tau])
     ok = ~np.isnan(tau_all).any(axis=1)
     gravity = GravityFunction(theta_all[ok], tau_all[ok])
     info: dict = {"gravity_fit_rel_error": gravity.rms_error / max(gravity.rms_tau, 1e-12)}
+    links, link_gravity = (), None
+    if arm is not None:
+        from pimbs_learn.diagnosis.links import link_torques
+
+        names, torques = link_torques(arm, theta_all)
+        if names:
+            links = tuple(names)
+            link_gravity = np.stack([gravity.project(theta_all, t) for t in torques])
     lo, hi = real.theta.min(0), real.theta.max(0)
     center, scale = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-3)
     m = real.tension.shape[1]
@@ -282,7 +292,7 @@ def build_physics(paired: Paired, kappa: np.ndarray | None) -> tuple[Physics, di
 
     def make(degree: int, kap: np.ndarray, count: int = recordings) -> Physics:
         return Physics(PolyBasis(real.theta.shape[1], degree, center, scale), kap, gravity,
-                       temp_zero, recordings=count)
+                       temp_zero, recordings=count, links=links, link_gravity=link_gravity)
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)

@@ -21,10 +21,13 @@ thermal_drift  c_j [N/°C]                              f_true = f − c_j (T_j 
 tendon_friction μ_j [–]                                f_true = f · exp(a_j μ_j) (capstan)
 elastic_stiffness s_j [–]                              κ_j → κ_j (1 + s_j)   (K_true = K/(1+s))
 joint_offset   δ_k [rad]                               θ_true = θ − δ
-link_mass      β_k, γ_ki [–] for the links beyond joint k g += β ∇V_distal,k + Σ γ_ki ∇V_i
+link_mass      s_i [–] for link i (robot file given)    g += s_i τ_i   (τ_i: link i's own)
+               β_k, γ_ki [–] beyond joint k (no file)   g += β ∇V_distal,k + Σ γ_ki ∇V_i
 ============== ======================================= =====================================
 
-``V_distal,k`` is the part of the model's gravity potential that moves with joints ≥ k:
+With the robot file, each link's own gravity torque ``τ_i`` is known (``links``): a link
+that weighs ``1 + s_i`` times what the file says, at its centre of mass, adds ``s_i τ_i``.
+Without it, ``V_distal,k`` is the part of the model's gravity potential that moves with joints ≥ k:
 a mass change of the links beyond joint k scales it exactly (``β = scale − 1``); its share
 of each proximal level ``V_i`` (terms whose last joint is i < k) is not identifiable from τ
 samples and gets its own ``γ_ki``.
@@ -65,6 +68,13 @@ class Unit:
         return f"{self.effect}[{self.index}]{'.' + self.part if self.part else ''}"
 
 
+def link_place(physics: Physics, unit: Unit, joints: list[str]) -> str:
+    """Where a link-mass unit's change sits, in words: the link, or the links beyond a joint."""
+    if unit.part == "link":
+        return f"link {physics.links[unit.index]}"
+    return f"links beyond {joints[unit.index]}"
+
+
 SENSOR = ("sensor_lag", "loadcell_hysteresis")
 MAX_LAG = 0.9  # share of the previous reading: beyond it the undone reading is mostly noise
 
@@ -87,8 +97,10 @@ def sensor_units(data: Samples) -> list[Unit]:
     return [Unit("sensor_lag", -1, "common"), Unit("loadcell_hysteresis", -1, "common")]
 
 
-def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
-    """Groups of units that are selected together (one group per muscle/joint/subtree)."""
+def units_of(effect: str, n_joints: int, n_muscles: int, links: int = 0
+             ) -> list[list[Unit]]:
+    """Groups of units that are selected together (one group per muscle, joint, link of
+    the robot file (``links`` of them), or, without the file, subtree)."""
     if effect == "thermal_drift":  # per muscle, or one coefficient shared by all loadcells
         return [[Unit(effect, j)] for j in range(n_muscles)] + (
             [[Unit(effect, -1, "common")]] if n_muscles > 1 else [])
@@ -96,6 +108,8 @@ def units_of(effect: str, n_joints: int, n_muscles: int) -> list[list[Unit]]:
         return [[Unit(effect, j)] for j in range(n_muscles)]
     if effect == "joint_offset":
         return [[Unit(effect, k)] for k in range(n_joints)]
+    if effect == "link_mass" and links:
+        return [[Unit(effect, i, "link")] for i in range(links)]
     if effect == "link_mass":
         return [[Unit(effect, 0, "distal")]] + [
             [Unit(effect, k, "distal")] + [Unit(effect, k, f"level{i}") for i in range(k)]
@@ -154,6 +168,10 @@ class Physics:
     # recordings whose rows are fitted together: one body schema, and each recording after
     # the first a length constant of its own per muscle (``blocks``)
     recordings: int = 1
+    # the links a mass change can sit on (from the robot file) and, (L, P), each one's own
+    # gravity in the basis of ``gravity``; empty without the file
+    links: tuple[str, ...] = ()
+    link_gravity: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def blocks(self, values: np.ndarray, session: np.ndarray | None) -> np.ndarray:
@@ -243,7 +261,9 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
         elif u.effect == "joint_offset":
             delta[u.index] = p
         elif u.effect == "link_mass":
-            if u.part == "distal":
+            if u.part == "link":
+                gravity_extra += p * physics.link_gravity[u.index]
+            elif u.part == "distal":
                 gravity_extra += p * physics.gravity.distal_split(u.index)[0]
             else:
                 gravity_extra += p * physics.gravity.level(int(u.part.removeprefix("level")))

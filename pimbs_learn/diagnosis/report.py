@@ -19,6 +19,7 @@ from pimbs_learn.diagnosis.model import (
     Samples,
     apply_effects,
     hysteresis,
+    link_place,
     schema_jacobian,
 )
 from pimbs_learn.diagnosis.select import P_VALUE, Candidate
@@ -75,9 +76,8 @@ def parameters(cand: Candidate, physics: Physics, joints: list[str],
             params[joints[unit.index]] = {"offset_rad": value, "se": se,
                                           "meaning": "joint sensor reads true angle + offset"}
         elif cand.effect == "link_mass":
-            key = f"links beyond {joints[unit.index]}"
-            entry = params.setdefault(key, {})
-            if unit.part == "distal":
+            entry = params.setdefault(link_place(physics, unit, joints), {})
+            if unit.part in ("link", "distal"):
                 entry.update({"mass_scale": 1.0 + value, "se": se})
             else:
                 entry.setdefault("proximal_shares", {})[joints[int(

@@ -95,7 +95,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     paired = combine([pair(rec, refs[i] if refs else None, arm) for i, rec in enumerate(reals)])
     if paired.real.n < MIN_SAMPLES:
         raise too_few_samples(reals[0].path, paired.real.n)
-    physics, model_info = build_physics(paired, kappa)
+    physics, model_info = build_physics(paired, kappa, arm)
     data = paired.real
     null = fit_effects(physics, data, sensor_units(data), key="full")  # the sensors' own
     named, tried, cv_null, final = select_effects(physics, data, null, effects, progress,
