@@ -128,7 +128,7 @@ class GravityFunction:
 
     def project(self, theta: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Coefficients in this basis of the torque field sampled as (θ, τ): the model's
-        gravity, or one link's share of it (``links.link_torques``)."""
+        gravity, or one link's share of it (``robot_file.link_torques``)."""
         a = self._gradients(theta).transpose(0, 2, 1).reshape(-1, self.basis.size)
         ata = a.T @ a
         return np.linalg.solve(ata + self.ridge * np.trace(ata) / len(ata) * np.eye(len(ata)),

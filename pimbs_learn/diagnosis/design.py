@@ -42,7 +42,6 @@ from pimbs_arm.poses import PosePlan, atl_floor_range, feasible, plan_poses
 from pimbs_arm.poses_file import pose_plan_csv
 from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, stretch_weights
-from pimbs_learn.diagnosis.links import link_torques
 from pimbs_learn.diagnosis.model import (
     SENSOR,
     Fit,
@@ -54,6 +53,7 @@ from pimbs_learn.diagnosis.model import (
     fit_schema,
     hysteresis,
 )
+from pimbs_learn.diagnosis.robot_file import link_torques
 from pimbs_learn.diagnosis.select import FD_STEP, _whitened, fd_column
 from pimbs_sim.effects import T_REF, Effect
 from pimbs_sim.simulate import simulate

@@ -146,17 +146,18 @@ def cross_validate(physics: Physics, data: Samples, units: list[Unit],
             "torque_rms": float(np.sqrt(np.mean(r_tau**2)))}
 
 
-def choose_degree(make_physics, data: Samples, degrees: list[int]) -> int:
-    """Body-schema polynomial degree with the best held-out likelihood of the null model."""
-    best, best_ll = degrees[0], -np.inf
-    for degree in degrees:
-        physics = make_physics(degree)
+def choose_schema(make_physics, data: Samples, options: list):
+    """The body schema (``make_physics(option)``: a polynomial degree, with or without the
+    robot file's routing) with the best held-out likelihood of the null model."""
+    best, best_ll = options[0], -np.inf
+    for k, option in enumerate(options):
+        physics = make_physics(option)
         ll = 0.0
         for i, test in enumerate(folds(data.n, 4, seed=1)):
             train = data.rows(np.setdiff1d(np.arange(data.n), test))
-            fit = fit_effects(physics, train, sensor_units(train), key=("deg", degree, i))
+            fit = fit_effects(physics, train, sensor_units(train), key=("schema", k, i))
             r_len, r_tau = evaluate(physics, fit, data.rows(test))
             ll += profile_log_lik(r_len, r_tau)
         if ll > best_ll:
-            best, best_ll = degree, ll
+            best, best_ll = option, ll
     return best

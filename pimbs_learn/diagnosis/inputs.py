@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
-from pimbs_learn.diagnosis.fit import choose_degree, fit_effects
+from pimbs_learn.diagnosis.fit import choose_schema, fit_effects
 from pimbs_learn.diagnosis.model import (
     Physics,
     Samples,
@@ -265,21 +265,23 @@ def degrees_for(n_joints: int, n_rows: int) -> list[int]:
 def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                   ) -> tuple[Physics, dict]:
     """Gravity function, elasticity and schema basis for the real recording; with the robot
-    description ``arm``, each link's own gravity too (a link mass is then one link's)."""
+    description ``arm``, each link's own gravity too (a link mass is then one link's), and
+    its routing as the schema's anchor where that predicts held-out rows better."""
     real, ref = paired.real, paired.reference
     theta_all = real.theta if ref is None else np.vstack([real.theta, ref.theta])
     tau_all = real.tau if ref is None else np.vstack([real.tau, ref.tau])
     ok = ~np.isnan(tau_all).any(axis=1)
     gravity = GravityFunction(theta_all[ok], tau_all[ok])
     info: dict = {"gravity_fit_rel_error": gravity.rms_error / max(gravity.rms_tau, 1e-12)}
-    links, link_gravity = (), None
+    links, link_gravity, routings = (), None, [None]
     if arm is not None:
-        from pimbs_learn.diagnosis.links import link_torques
+        from pimbs_learn.diagnosis.robot_file import FileRouting, link_torques
 
         names, torques = link_torques(arm, theta_all)
         if names:
             links = tuple(names)
             link_gravity = np.stack([gravity.project(theta_all, t) for t in torques])
+        routings = [FileRouting(arm), None]
     lo, hi = real.theta.min(0), real.theta.max(0)
     center, scale = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-3)
     m = real.tension.shape[1]
@@ -290,35 +292,45 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
 
     recordings = 1 if real.session is None else len(np.unique(real.session))
 
-    def make(degree: int, kap: np.ndarray, count: int = recordings) -> Physics:
+    def make(schema: tuple, kap: np.ndarray, count: int = recordings) -> Physics:
+        degree, routing = schema
         return Physics(PolyBasis(real.theta.shape[1], degree, center, scale), kap, gravity,
-                       temp_zero, recordings=count, links=links, link_gravity=link_gravity)
+                       temp_zero, recordings=count, links=links, link_gravity=link_gravity,
+                       routing=routing)
 
     start = np.full(m, DEFAULT_KAPPA) if kappa is None else np.asarray(kappa, float)
     degrees = degrees_for(real.theta.shape[1], real.n)
     # the noise levels are estimated with each recording's own length constant, as every
     # fit holds them: one constant over sessions homed apart reads their shift as noise
-    first = make(degrees[len(degrees) // 2], start)
-    for data in (real, ref):
-        if data is not None:
-            data.len_weight, noise = length_weights(first, data)
-            info.setdefault("noise_estimate", noise)
-    degree = choose_degree(lambda d: make(d, start), real, degrees)
+    def weigh(physics: Physics) -> None:
+        for data in (real, ref):
+            if data is not None:
+                data.len_weight, noise = length_weights(physics, data)
+                if data is real:
+                    info["noise_estimate"] = noise
+
+    weigh(make((degrees[len(degrees) // 2], None), start))
+    schema = choose_schema(lambda o: make(o, start), real,
+                           [(d, r) for r in routings for d in degrees])
+    if schema[1] is not None:  # the file's routing leaves less to length noise
+        weigh(make(schema, start))
+    degree = schema[0]
     if kappa is None:
         if ref is None:
             raise DiagnosisInputError("need a reference recording or a robot description to "
                                       "know the modelled elasticity K")
         # The reference obeys the model by construction: its lengths and torque balance
-        # reveal the modelled elasticity (and the sign convention of its writer).
+        # reveal the modelled elasticity (and the sign convention of its writer), where
+        # each muscle's tension varies apart from its pose.
         units = [Unit("elastic_stiffness", j) for j in range(m)]
-        ref_fit = fit_effects(make(degree, start), ref, units)
+        ref_fit = fit_effects(make(schema, start), ref, units)
         start = start * (1.0 + ref_fit.params)
         info["kappa_source"] = "reference"
     else:
         info["kappa_source"] = "description"
     info["kappa"] = start.tolist()
     info["schema_degree"] = degree
-    physics = make(degree, start)
+    physics = make(schema, start)
     for data in (real, ref):
         if data is not None:
             h, share = tell_branches(physics, data)
@@ -326,6 +338,7 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                 info["loadcell_branches_from_lengths"] = {"doubtful_share": share,
                                                           "hysteresis_N": h}
     info["schema"] = "learned from the real recording"
+    info["schema_from_robot_file"] = physics.routing is not None
     if ref is not None:
         tied = tie_to_reference(physics, real, ref)
         if tied is not None:

@@ -4,7 +4,8 @@ A static sample obeys two laws, whatever the arm:
 
 * **length** (L): ``l = h(θ_true) + κ ⊙ log1p(f_true)`` — the body schema ``h`` (muscle
   routing, learned from the data themselves as a smooth function, so that a routing that
-  differs from the model is never mistaken for an effect) plus the elastic stretch of
+  differs from the model is never mistaken for an effect; with the robot file, learned as
+  the file's routing plus a smooth correction, ``robot_file``) plus the elastic stretch of
   ``f = exp(KΔn) − 1`` (``κ = ∓1/K``, its sign and size taken from the reference);
 * **torque** (T): ``−G(θ_true)ᵀ f_true = g_true(θ_true)`` with ``G = ∂h/∂θ`` of that same
   schema.
@@ -45,11 +46,15 @@ balance alone: the three are told apart by how the error scales with tension.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
+
+if TYPE_CHECKING:
+    from pimbs_learn.diagnosis.robot_file import FileRouting
 
 EFFECTS = ("tendon_friction", "link_mass", "tension_offset", "tension_gain", "thermal_drift",
            "elastic_stiffness", "joint_offset")
@@ -172,6 +177,9 @@ class Physics:
     # gravity in the basis of ``gravity``; empty without the file
     links: tuple[str, ...] = ()
     link_gravity: np.ndarray | None = None
+    # the robot file's routing (``robot_file.FileRouting``): the schema is then its lengths
+    # plus the basis' correction; None: the basis alone
+    routing: FileRouting | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def blocks(self, values: np.ndarray, session: np.ndarray | None) -> np.ndarray:
@@ -319,17 +327,21 @@ def stretch_term(tension: np.ndarray) -> np.ndarray:
     return np.where(tension >= 0, np.log1p(np.maximum(tension, 0.0)), tension)
 
 
-def schema_target(state: State, data: Samples) -> np.ndarray:
-    """Length minus the elastic stretch: what the body schema h(θ) must explain."""
+def schema_target(physics: Physics, state: State, data: Samples) -> np.ndarray:
+    """Length minus the elastic stretch (and minus the file's routing, when the schema is
+    anchored to it): what the body schema's basis must explain."""
     length = data.length if state.length is None else state.length
-    return length - state.kappa * stretch_term(state.tension)
+    out = length - state.kappa * stretch_term(state.tension)
+    if physics.routing is not None:
+        out = out - physics.routing.at(state.theta)[0]
+    return out
 
 
 def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.ndarray:
     """Least-squares body schema weights on these samples: (P, M), or (P + R − 1, M) for R
     recordings fitted together (``Physics.blocks``)."""
     values, _, factors = physics.basis_at(state.theta, key, data.len_weight, data.session)
-    y = schema_target(state, data)
+    y = schema_target(physics, state, data)
     if physics.tied is not None:  # refit only the constants (monomial 0 of each recording)
         w2 = np.ones_like(y) if data.len_weight is None else data.len_weight**2
         weights = physics.tied.copy()
@@ -350,20 +362,22 @@ def fit_schema(physics: Physics, state: State, data: Samples, key=None) -> np.nd
 
 def schema_jacobian(physics: Physics, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """G = ∂h/∂θ of the fitted schema, as (B, M, N) (no normal equations needed)."""
-    return np.einsum("bpn,pm->bmn", physics.basis.gradients(theta),
-                     weights[:physics.basis.size])
+    jac = np.einsum("bpn,pm->bmn", physics.basis.gradients(theta), weights[:physics.basis.size])
+    return jac if physics.routing is None else jac + physics.routing.at(theta)[1]
 
 
 def residuals(physics: Physics, state: State, data: Samples, weights: np.ndarray,
               key=None) -> tuple[np.ndarray, np.ndarray]:
     """(length residual (B, M) in m, torque residual (B, N) in N·m)."""
     values, grads, _ = physics.basis_at(state.theta, key, data.len_weight, data.session)
-    r_len = schema_target(state, data) - values @ weights
+    r_len = schema_target(physics, state, data) - values @ weights
     if data.len_weight is not None:
         r_len = r_len * data.len_weight
     if state.len_scale != 1.0:  # in reading units, like the torques (``reading_scale``)
         r_len = r_len / state.len_scale
     gt = grads @ weights[:physics.basis.size]  # Gᵀ per sample, (B, N, M)
+    if physics.routing is not None:
+        gt = gt + physics.routing.at(state.theta)[1].transpose(0, 2, 1)
     r_tau = -(gt @ state.tension[:, :, None])[:, :, 0] - state.tau
     if state.scale is not None:
         r_tau = r_tau / reading_scale(gt, state.scale)

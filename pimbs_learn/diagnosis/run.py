@@ -90,8 +90,11 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                     f"{rec.path} does not match robot {arm.robot.name}: recording joints "
                     f"{rec.joints}, muscles {rec.muscles}; description joints "
                     f"{list(arm.joints)}, muscles {list(arm.muscles)}")
-        if not refs:
-            kappa = -1.0 / arm.K  # PIMBS' own sign convention (l = h − Δn)
+        # the file states the elasticity (PIMBS' own sign convention, l = h − Δn); a
+        # reference tells it only where each muscle's tension varies apart from its pose:
+        # fitted on a session held at its floors it takes in what the real arm's effects
+        # do to the stretch (a 20 N offset on the elbow's triceps came out at 8 N)
+        kappa = -1.0 / arm.K
     paired = combine([pair(rec, refs[i] if refs else None, arm) for i, rec in enumerate(reals)])
     if paired.real.n < MIN_SAMPLES:
         raise too_few_samples(reals[0].path, paired.real.n)
