@@ -6,7 +6,7 @@ A static sample obeys two laws, whatever the arm:
   routing, learned from the data themselves as a smooth function, so that a routing that
   differs from the model is never mistaken for an effect; with the robot file, learned as
   the file's routing plus a smooth correction, ``robot_file``) plus the elastic stretch of
-  ``f = exp(KΔn) − 1`` (``κ = ∓1/K``, its sign and size taken from the reference);
+  ``f = exp(KΔn) − 1`` (``κ = ∓1/K``, from the robot file, else from the reference);
 * **torque** (T): ``−G(θ_true)ᵀ f_true = g_true(θ_true)`` with ``G = ∂h/∂θ`` of that same
   schema.
 
@@ -26,12 +26,12 @@ link_mass      s_i [–] for link i (robot file given)    g += s_i τ_i   (τ_i:
                β_k, γ_ki [–] beyond joint k (no file)   g += β ∇V_distal,k + Σ γ_ki ∇V_i
 ============== ======================================= =====================================
 
-With the robot file, each link's own gravity torque ``τ_i`` is known (``links``): a link
-that weighs ``1 + s_i`` times what the file says, at its centre of mass, adds ``s_i τ_i``.
-Without it, ``V_distal,k`` is the part of the model's gravity potential that moves with joints ≥ k:
-a mass change of the links beyond joint k scales it exactly (``β = scale − 1``); its share
-of each proximal level ``V_i`` (terms whose last joint is i < k) is not identifiable from τ
-samples and gets its own ``γ_ki``.
+With the robot file, each link's own gravity torque ``τ_i`` is known
+(``robot_file.link_torques``): a link that weighs ``1 + s_i`` times what the file says, at
+its centre of mass, adds ``s_i τ_i``. Without it, ``V_distal,k`` is the part of the model's
+gravity potential that moves with joints ≥ k: a mass change of the links beyond joint k
+scales it exactly (``β = scale − 1``); its share of each proximal level ``V_i`` (terms whose
+last joint is i < k) is not identifiable from τ samples and gets its own ``γ_ki``.
 
 A thermal drift is anchored where the loadcell was zeroed (per muscle, or one coefficient
 common to all loadcells of one type and amplifier: pooled, it is seen where per-muscle

@@ -305,8 +305,10 @@ def text_report(result: dict) -> str:
     lines = [f"PIMBS diagnosis of {' and '.join(r['real'] for r in recs)} against {against}"
              + (" (together)" if len(recs) > 1 else ""),
              f"  {result['rows']} paired samples, {len(result['joints'])} joints, "
-             f"{len(result['muscles'])} muscles; body schema: degree-"
-             f"{result['model']['schema_degree']} polynomial, {result['model']['schema']}", "",
+             f"{len(result['muscles'])} muscles; body schema: "
+             + ("the robot file's routing + " if result["model"]["schema_from_robot_file"]
+                else "") + f"degree-{result['model']['schema_degree']} polynomial, "
+             f"{result['model']['schema']}", "",
              "Where it disagrees (before any effect is modelled):"]
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")
