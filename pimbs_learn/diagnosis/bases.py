@@ -106,6 +106,18 @@ class TrigBasis:
         return np.any(self.codes[:, first_joint:] > 0, axis=1)
 
 
+def at_poses(cache: dict, theta: np.ndarray, compute, limit: int):
+    """``compute(θ)`` memoised in ``cache`` by the poses' values (cleared past ``limit``
+    entries): the fits evaluate the same pose sets many times."""
+    theta = np.ascontiguousarray(theta, dtype=float)
+    key = (theta.shape, hash(theta.tobytes()))
+    if key not in cache:
+        if len(cache) > limit:
+            cache.clear()
+        cache[key] = compute(theta)
+    return cache[key]
+
+
 class GravityFunction:
     """The model's gravity torque as a function, fitted to (θ, τ) samples.
 
@@ -136,14 +148,7 @@ class GravityFunction:
 
     def _gradients(self, theta: np.ndarray) -> np.ndarray:
         """Basis gradients, memoised: the fits evaluate many coefficients at fixed poses."""
-        theta = np.ascontiguousarray(theta, dtype=float)
-        key = (theta.shape, hash(theta.tobytes()))
-        cache = self.__dict__.setdefault("_cache", {})
-        if key not in cache:
-            if len(cache) > 32:
-                cache.clear()
-            cache[key] = self.basis.gradients(theta)
-        return cache[key]
+        return at_poses(self.__dict__.setdefault("_cache", {}), theta, self.basis.gradients, 32)
 
     def torque(self, theta: np.ndarray, coef: np.ndarray | None = None) -> np.ndarray:
         c = self.coef if coef is None else coef

@@ -191,11 +191,11 @@ def rival_unit_sets(physics: Physics, data: Samples, without: Fit, named: Candid
         same = [Unit(effect, j) for j in muscles if Unit(effect, j) not in without.units]
         if same and set(same) != set(own):
             sets.append(same)
-    n_joints, n_muscles = data.theta.shape[1], data.tension.shape[1]
+    n_muscles = data.tension.shape[1]
     if effect == "link_mass" and not own:
         # one subtree is what a mass can be: the whole arm, the screen's usual first pick;
         # of the file's links, the last, whose weight every joint carries
-        groups = units_of(effect, n_joints, n_muscles, len(physics.links))
+        groups = units_of(effect, physics, data)
         group = groups[-1] if physics.links else groups[0]
         if not any(u in without.units for u in group):
             sets.append(group)

@@ -51,8 +51,7 @@ def detectable(physics: Physics, data: Samples, fit: Fit, joints: list[str],
     out: dict = {}
     for effect in effects:
         sizes: list[tuple[float, str]] = []
-        for group in units_of(effect, data.theta.shape[1], data.tension.shape[1],
-                              len(physics.links)):
+        for group in units_of(effect, physics, data):
             unit = group[0]
             if unit in fit.units or unit.part == "common":
                 continue

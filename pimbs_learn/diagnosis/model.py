@@ -102,10 +102,10 @@ def sensor_units(data: Samples) -> list[Unit]:
     return [Unit("sensor_lag", -1, "common"), Unit("loadcell_hysteresis", -1, "common")]
 
 
-def units_of(effect: str, n_joints: int, n_muscles: int, links: int = 0
-             ) -> list[list[Unit]]:
+def units_of(effect: str, physics: Physics, data: Samples) -> list[list[Unit]]:
     """Groups of units that are selected together (one group per muscle, joint, link of
-    the robot file (``links`` of them), or, without the file, subtree)."""
+    the robot file (``physics.links``), or, without the file, subtree)."""
+    n_joints, n_muscles, links = data.theta.shape[1], data.tension.shape[1], len(physics.links)
     if effect == "thermal_drift":  # per muscle, or one coefficient shared by all loadcells
         return [[Unit(effect, j)] for j in range(n_muscles)] + (
             [[Unit(effect, -1, "common")]] if n_muscles > 1 else [])

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from pimbs_arm.model import ArmModel
+from pimbs_learn.diagnosis.bases import at_poses
 from pimbs_sim.effects import Effect, EffectSpecError
 
 
@@ -72,10 +73,5 @@ class FileRouting:
         self._cache: dict = {}
 
     def at(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        theta = np.ascontiguousarray(theta, dtype=float)
-        key = (theta.shape, hash(theta.tobytes()))
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            self._cache[key] = (self.arm.h_geom(theta), self.arm.muscle_jacobian(theta))
-        return self._cache[key]
+        return at_poses(self._cache, theta,
+                        lambda t: (self.arm.h_geom(t), self.arm.muscle_jacobian(t)), 64)

@@ -140,15 +140,13 @@ def mass_seen(physics: Physics, data: Samples, unit: Unit, sigma_tau: np.ndarray
 def screen(physics: Physics, data: Samples, base: Fit, effect: str) -> list[Unit]:
     """Units of ``effect`` that the residuals of ``base`` ask for (greedy, linearised)."""
     sigma = (base.sigma_len, base.sigma_tau)
-    groups = [g for g in units_of(effect, data.theta.shape[1], data.tension.shape[1],
-                                 len(physics.links))
-              if not any(u in base.units for u in g)]  # an effect may grow, never repeat
+    every = units_of(effect, physics, data)
+    # an effect may grow, never repeat
+    groups = [g for g in every if not any(u in base.units for u in g)]
     if effect == "link_mass":
         groups = [g for g in ([u for u in g if mass_seen(physics, data, u, base.sigma_tau)]
                               for g in groups) if g]
-    taken = sum(any(u in base.units for u in g)
-                for g in units_of(effect, data.theta.shape[1], data.tension.shape[1],
-                                 len(physics.links)))
+    taken = sum(any(u in base.units for u in g) for g in every)
     if not groups or taken >= MAX_GROUPS.get(effect, len(groups) + taken):
         return []
     r0 = _whitened(physics, data, base.units, base.params, sigma)
