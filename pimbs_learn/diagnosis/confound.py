@@ -46,7 +46,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
-from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, MIN_SAMPLES
+from pimbs_learn.diagnosis.inputs import MIN_SAMPLES, moved_less
 from pimbs_learn.diagnosis.model import (
     EFFECTS,
     Fit,
@@ -220,7 +220,7 @@ def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:
     h = hysteresis(final)
     if data.branch is None or data.prev_tension is None or not h:
         return None
-    unsure = np.abs(data.tension - data.prev_tension) < 2.0 * h + BRANCH_DEADBAND
+    unsure = moved_less(data, h)
     return unsure if unsure.any() else None
 
 

@@ -37,38 +37,66 @@ class DiagnosisInputError(ValueError):
 
 
 BRANCH_DEADBAND = 1.0  # N: a smaller change of a reading leaves its loadcell on its branch
+BRANCH_NOISE = 3.0  # σ of a steady loadcell's changes: a change within them may be noise
 
 
 def samples_from(rec: Recording, tau: np.ndarray | None = None) -> Samples:
     t = rec.time.astype("datetime64[us]").astype(np.int64) / 1e6
-    prev_tension, prev_length, branch = collection_order(t, rec.tension, rec.length)
+    prev_tension, prev_length, branch, deadband = collection_order(t, rec.tension, rec.length)
     return Samples(theta=rec.theta, tension=rec.tension, length=rec.length,
                    temperature=rec.temperature, approach=rec.approach.astype(float),
                    tau=rec.tau_gravity if tau is None else tau, time=t - t[0],
                    sample=rec.sample, prev_tension=prev_tension, prev_length=prev_length,
-                   branch=branch)
+                   branch=branch, deadband=np.broadcast_to(deadband, rec.tension.shape))
 
 
 def collection_order(time: np.ndarray, tension: np.ndarray, length: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per row, the readings logged just before it (in time order; zero before the first
-    row: a session starts at home, unloaded, where lengths and tensions are zero) and each
-    loadcell's hysteresis branch (+1 when its reading rose into the row by more than
-    ``BRANCH_DEADBAND``, −1 when it fell, else the previous row's; the first pose is reached
-    by loading) — what the sensor nuisances (``model.sensor_units``) need."""
+    row: a session starts at home, unloaded, where lengths and tensions are zero), each
+    loadcell's hysteresis branch (+1 when its reading rose into the row by more than its
+    dead band, −1 when it fell, else the previous row's; the first pose is reached by
+    loading), and the (M,) dead bands (``dead_bands``) — what the sensor nuisances
+    (``model.sensor_units``) need."""
     order = np.argsort(time, kind="stable")
     y, ln = tension[order], length[order]
     prev_y = np.vstack([np.zeros((1, y.shape[1])), y[:-1]])
     prev_l = np.vstack([np.zeros((1, ln.shape[1])), ln[:-1]])
     change = y - prev_y
+    deadband = dead_bands(change[1:])
     branch = np.ones_like(y)
     current = np.ones(y.shape[1])
     for i in range(len(y)):
-        current = np.where(np.abs(change[i]) > BRANCH_DEADBAND, np.sign(change[i]), current)
+        current = np.where(np.abs(change[i]) > deadband, np.sign(change[i]), current)
         branch[i] = current
     back = np.empty_like(order)
     back[order] = np.arange(len(order))
-    return prev_y[back], prev_l[back], branch[back]
+    return prev_y[back], prev_l[back], branch[back], deadband
+
+
+def dead_bands(change: np.ndarray) -> np.ndarray:
+    """(M,) change of each loadcell's reading, in N, within which its branch is kept.
+
+    ``BRANCH_DEADBAND``, widened to ``BRANCH_NOISE`` σ of the loadcell's own changes where
+    those mostly stay within it (a robust σ below ``BRANCH_DEADBAND``): a wire slack
+    through a session never moves its tension, so its changes are its noise. With a 0.3 N
+    loadcell, one change in a hundred passes 1 N; the guess then flipped, and stayed flipped
+    until noise flipped it back, so half of a slack wire's rows could sit on the wrong
+    branch. Its constant length cannot say which, and the fitted hysteresis shrank to fit
+    both (docs/diagnosis-notebook.md). A loadcell whose tension moves keeps the plain dead
+    band: its changes are moves, not noise."""
+    if len(change) < 2:
+        return np.full(change.shape[1], BRANCH_DEADBAND)
+    sigma = 1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0)
+    return np.where(sigma < BRANCH_DEADBAND, BRANCH_DEADBAND + BRANCH_NOISE * sigma,
+                    BRANCH_DEADBAND)
+
+
+def moved_less(data: Samples, h: float) -> np.ndarray:
+    """(B, M) entries whose reading changed by less than 2h past its dead band: the change
+    may come from a flip of the branch or from none."""
+    deadband = BRANCH_DEADBAND if data.deadband is None else data.deadband
+    return np.abs(data.tension - data.prev_tension) < 2.0 * h + deadband
 
 
 def too_few_samples(path: object, n: int) -> DiagnosisInputError:
@@ -213,7 +241,7 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
 
     A branch is read from the change of the reading into the row. That change is the
     tension's change plus, where the branch flipped, a jump of 2h against it: a change
-    smaller than 2h past ``BRANCH_DEADBAND`` may come from a flip or from none. In a
+    smaller than 2h past the dead band (``dead_bands``) may come from a flip or from none. In a
     narrow session at the floors about half the entries are such, and a quarter to a
     third of their guesses are wrong (the simulator's true branches known;
     docs/diagnosis-notebook.md); a wrong one leaves 2h that follows the direction the
@@ -230,12 +258,11 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
     with them: then the lengths are not trusted to tell, and the guesses stay."""
     if data.branch is None or data.prev_tension is None:
         return 0.0, 0.0
-    change = np.abs(data.tension - data.prev_tension)
     units = sensor_units(data)
     fit = fit_effects(physics, data, units)
-    doubt = np.zeros(change.shape, bool)
+    doubt = np.zeros(data.tension.shape, bool)
     for _ in range(BRANCH_ROUNDS):
-        doubt = change < 2.0 * hysteresis(fit) + BRANCH_DEADBAND
+        doubt = moved_less(data, hysteresis(fit))
         if not doubt.any():
             break
         sq = [(evaluate(physics, fit, replace(data, branch=np.where(doubt, b, data.branch)))[0]
@@ -401,7 +428,7 @@ def combine(parts: list[Paired]) -> Paired:
         out = Samples(**{k: np.concatenate([getattr(s, k) for s in samples])
                          for k in ("theta", "tension", "length", "temperature", "approach",
                                    "tau", "time", "sample")})
-        for k in ("prev_tension", "prev_length", "branch"):  # each session its own order
+        for k in ("prev_tension", "prev_length", "branch", "deadband"):  # each its own
             if all(getattr(s, k) is not None for s in samples):
                 setattr(out, k, np.concatenate([getattr(s, k) for s in samples]))
         out.temp_zero = np.concatenate([np.broadcast_to(z, s.tension.shape)

@@ -148,6 +148,9 @@ class Samples:
     prev_tension: np.ndarray | None = None
     prev_length: np.ndarray | None = None
     branch: np.ndarray | None = None
+    # (B, M) N: a reading's change within this may be the loadcell's noise and dead band,
+    # not a move of its tension (``inputs.collection_order``)
+    deadband: np.ndarray | None = None
 
     def rows(self, idx: np.ndarray) -> Samples:
         return Samples(**{k: None if v is None else v[idx] for k, v in self.__dict__.items()})
