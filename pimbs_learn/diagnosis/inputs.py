@@ -94,9 +94,9 @@ def dead_bands(change: np.ndarray) -> np.ndarray:
 
 def moved_less(data: Samples, h: float) -> np.ndarray:
     """(B, M) entries whose reading changed by less than 2h past its dead band: the change
-    may come from a flip of the branch or from none."""
-    deadband = BRANCH_DEADBAND if data.deadband is None else data.deadband
-    return np.abs(data.tension - data.prev_tension) < 2.0 * h + deadband
+    may come from a flip of the branch or from none. The dead bands come with the branches
+    (``collection_order``)."""
+    return np.abs(data.tension - data.prev_tension) < 2.0 * h + data.deadband
 
 
 def too_few_samples(path: object, n: int) -> DiagnosisInputError:
