@@ -51,6 +51,26 @@ def test_the_files_routing_anchors_the_schema_of_a_five_joint_arm(tmp_path):
     assert anchored["effects"] == [] and anchored["ambiguous"] == []
 
 
+def test_a_rerouted_arm_still_corrects_the_files_routing(tmp_path):
+    """Every via point 4 mm off the file: lengths differ from the file's by millimetres
+    that vary with the pose, and a polynomial correction predicts them clearly better than
+    the file's routing as it is. The schema learns the routing (it is not physics left
+    out), the lengths fit to the sensors' noise, and nothing is named."""
+    from pimbs_sim.effects import parse_effect
+
+    arm = ArmModel.load(ROBOT)
+    paths = []
+    for name, effects in (("sim", ()), ("real", (parse_effect("routing:0.004", seed=21),))):
+        data, meta = simulate(arm, 200, "atl", seed=3, noise_seed=3 + (name == "real"),
+                              effects=effects)
+        paths.append(tmp_path / f"{name}.parquet")
+        write_recording(paths[-1], data, meta)
+    result, _ = diagnose(paths[1], paths[0], robot=ROBOT, design_poses=0)
+    assert result["model"]["schema_degree"] >= 1
+    assert _length_noise(result) < 15e-6, result["model"]["noise_length_m"]
+    assert result["effects"] == [] and result["ambiguous"] == [], result["effects"]
+
+
 class _Unrelated:
     """A routing that has nothing to do with the arm: lengths that ripple with every joint."""
 

@@ -146,8 +146,14 @@ def zero_temperature(rec: Recording) -> tuple[np.ndarray, str]:
     return rec.temperature[order].mean(axis=0), "first sample"
 
 
-def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
-    """Check the recordings describe the same arm and poses; fill missing gravity."""
+def pair(real: Recording, reference: Recording | None, arm=None,
+         min_rows: int = MIN_SAMPLES) -> Paired:
+    """Check the recordings describe the same arm and poses; fill missing gravity.
+
+    ``min_rows``: the paired rows this recording must give. A recording diagnosed with
+    others (the poses collected to settle a first session, of which the arm may have
+    given a few up) needs only to pair; the rows of all of them together must be enough
+    (``diagnose``)."""
     if reference is not None:
         for key in ("joints", "muscles"):
             if getattr(real, key) != getattr(reference, key):
@@ -155,9 +161,9 @@ def pair(real: Recording, reference: Recording | None, arm=None) -> Paired:
                     f"{real.path} and {reference.path} describe different arms: {key} "
                     f"{getattr(real, key)} vs {getattr(reference, key)}")
         common, ia, ib = np.intersect1d(real.sample, reference.sample, return_indices=True)
-        if len(common) < MIN_SAMPLES:
+        if len(common) < min_rows:
             for rec in (real, reference):
-                if len(rec.sample) < MIN_SAMPLES:
+                if len(rec.sample) < min_rows:
                     raise too_few_samples(rec.path, len(rec.sample))
             raise DiagnosisInputError(
                 f"{real.path} and {reference.path} share only {len(common)} sample ids; they "
@@ -293,7 +299,8 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                   ) -> tuple[Physics, dict]:
     """Gravity function, elasticity and schema basis for the real recording; with the robot
     description ``arm``, each link's own gravity too (a link mass is then one link's), and
-    its routing as the schema's anchor where that predicts held-out rows better."""
+    its routing as the schema: as it is, or corrected where a correction predicts held-out
+    rows clearly better (``fit.choose_schema``)."""
     real, ref = paired.real, paired.reference
     theta_all = real.theta if ref is None else np.vstack([real.theta, ref.theta])
     tau_all = real.tau if ref is None else np.vstack([real.tau, ref.tau])
@@ -337,8 +344,13 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                     info["noise_estimate"] = noise
 
     weigh(make((degrees[len(degrees) // 2], None), start))
-    schema = choose_schema(lambda o: make(o, start), real,
-                           [(d, r) for r in routings for d in degrees])
+    # simplest first: the file's routing as it is (up to each muscle's constant: its
+    # motor's homing), corrected linearly, then by the degrees the rows allow, the file's
+    # routing before none at each degree
+    options = sorted([(d, r) for r in routings
+                      for d in ([0, 1, *degrees] if r is not None else degrees)],
+                     key=lambda o: (o[0], o[1] is None))
+    schema = choose_schema(lambda o: make(o, start), real, options)
     if schema[1] is not None:  # the file's routing leaves less to length noise
         weigh(make(schema, start))
     degree = schema[0]

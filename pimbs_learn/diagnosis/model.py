@@ -263,8 +263,8 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
             j = slice(None) if u.part == "common" else u.index
             t0 = physics.temp_zero[None, :] if data.temp_zero is None else data.temp_zero
             f[:, j] -= p * (data.temperature[:, j] - t0[:, j])
-        elif u.effect == "tension_gain":
-            scale[u.index] = 1.0 / (1.0 + p)
+        elif u.effect == "tension_gain":  # a factor 1 + g ≤ 0 reads no tension at all
+            scale[u.index] = 1.0 / (1.0 + p) if p > -1.0 else np.nan
         elif u.effect == "tendon_friction":
             gain[u.index] = p
         elif u.effect == "elastic_stiffness":

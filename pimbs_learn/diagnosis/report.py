@@ -297,6 +297,15 @@ def ambiguity_text(result: dict) -> list[str]:
     return lines
 
 
+def _schema_text(model: dict) -> str:
+    """The body schema in words: the robot file's routing as it is (up to each muscle's
+    constant), corrected by a polynomial, or a polynomial alone; and where it came from."""
+    degree, anchored = model["schema_degree"], model["schema_from_robot_file"]
+    form = ("the robot file's routing + a constant per muscle" if anchored and not degree else
+            ("the robot file's routing + " if anchored else "") + f"degree-{degree} polynomial")
+    return f"{form}, {model['schema']}"
+
+
 def text_report(result: dict) -> str:
     recs = result.get("recordings") or [{"real": result["real"],
                                          "reference": result.get("reference")}]
@@ -306,9 +315,7 @@ def text_report(result: dict) -> str:
              + (" (together)" if len(recs) > 1 else ""),
              f"  {result['rows']} paired samples, {len(result['joints'])} joints, "
              f"{len(result['muscles'])} muscles; body schema: "
-             + ("the robot file's routing + " if result["model"]["schema_from_robot_file"]
-                else "") + f"degree-{result['model']['schema_degree']} polynomial, "
-             f"{result['model']['schema']}", "",
+             + _schema_text(result["model"]), "",
              "Where it disagrees (before any effect is modelled):"]
     lines += [f"  - {s}" for s in result["location"]["summary"]]
     lines.append("")

@@ -95,9 +95,11 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         # fitted on a session held at its floors it takes in what the real arm's effects
         # do to the stretch (a 20 N offset on the elbow's triceps came out at 8 N)
         kappa = -1.0 / arm.K
-    paired = combine([pair(rec, refs[i] if refs else None, arm) for i, rec in enumerate(reals)])
+    least = MIN_SAMPLES if len(reals) == 1 else 1  # together, the rows must be enough
+    paired = combine([pair(rec, refs[i] if refs else None, arm, least)
+                      for i, rec in enumerate(reals)])
     if paired.real.n < MIN_SAMPLES:
-        raise too_few_samples(reals[0].path, paired.real.n)
+        raise too_few_samples(" + ".join(str(r.path) for r in reals), paired.real.n)
     physics, model_info = build_physics(paired, kappa, arm)
     data = paired.real
     null = fit_effects(physics, data, sensor_units(data), key="full")  # the sensors' own
