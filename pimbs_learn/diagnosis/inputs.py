@@ -345,10 +345,13 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
 
     weigh(make((degrees[len(degrees) // 2], None), start))
     # simplest first: the file's routing as it is (up to each muscle's constant: its
-    # motor's homing), corrected linearly, then by the degrees the rows allow, the file's
-    # routing before none at each degree
+    # motor's homing), then corrected by the degrees the rows allow, the file's routing
+    # before none at each degree. Not linearly: a linear correction won held-out rows from
+    # the file as it is where MuJoCo's tendons or a narrow session's stretch differ from
+    # it, and took too little of the difference in; what it left was named
+    # (docs/diagnosis-notebook.md)
     options = sorted([(d, r) for r in routings
-                      for d in ([0, 1, *degrees] if r is not None else degrees)],
+                      for d in ([0, *degrees] if r is not None else degrees)],
                      key=lambda o: (o[0], o[1] is None))
     schema = choose_schema(lambda o: make(o, start), real, options)
     if schema[1] is not None:  # the file's routing leaves less to length noise
