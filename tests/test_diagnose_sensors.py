@@ -250,7 +250,7 @@ def test_a_narrow_session_keeps_the_files_moment_arms(tmp_path):
     """At the floors a length carries its loadcell's noise and hysteresis times
     ``1/(K(1 + f))``, hundreds of micrometres against the encoder's few. A correction to
     the file's routing fitted to such lengths bends the moment arms, and the torque balance
-    then reads the bend as physics: on the 5-DOF arm it left "not noise" and stiffness or
+    then reads the bend as physics: on the 5-DOF arm it left "not noise" and gain or
     offset names resting on guessed branches. Unless a correction predicts held-out rows
     clearly better, the file's routing is taken as it is (a constant per muscle: its
     motor's homing), with its own moment arms; the clean session then leaves nothing."""
