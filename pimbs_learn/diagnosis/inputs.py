@@ -16,6 +16,7 @@ import numpy as np
 from pimbs_learn.diagnosis.bases import GravityFunction, PolyBasis
 from pimbs_learn.diagnosis.fit import choose_schema, fit_effects
 from pimbs_learn.diagnosis.model import (
+    Fit,
     Physics,
     Samples,
     Unit,
@@ -257,9 +258,10 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
     ``2h·|κ|/(1 + f)``, hundreds of micrometres at a floor against an encoder's few (there
     under 1 % stay wrong). It is read with the physics every later fit uses (the chosen
     schema degree): on MuJoCo arms a lower degree's schema error was read as branches.
-    Each doubtful entry takes the branch whose length fits the sensors' fit better, if
-    that one fits within ``BRANCH_FIT`` of the fit's noise (where the stretch law does not
-    hold as modelled the guess stays), and the sensors are refitted with them
+    Each doubtful entry takes the branch whose length fits the sensors' fit better
+    (``_branch_misfits``: measured from its muscle's length constant chosen with the
+    branches), if that one fits within ``BRANCH_FIT`` of the fit's noise (where the stretch
+    law does not hold as modelled the guess stays), and the sensors are refitted with them
     (``BRANCH_ROUNDS``) — unless the torques, whose balance needs no stretch law, fit worse
     with them: then the lengths are not trusted to tell, and the guesses stay."""
     if data.branch is None or data.prev_tension is None:
@@ -271,8 +273,7 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
         doubt = moved_less(data, hysteresis(fit))
         if not doubt.any():
             break
-        sq = [(evaluate(physics, fit, replace(data, branch=np.where(doubt, b, data.branch)))[0]
-               / fit.sigma_len) ** 2 for b in (1.0, -1.0)]
+        sq = _branch_misfits(physics, fit, data, doubt)
         # the better branch's length within the fit's noise: else the stretch law does not
         # hold there as modelled, and the length tells nothing
         clear = doubt & (np.minimum(sq[0], sq[1]) <= BRANCH_FIT**2)
@@ -285,6 +286,52 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
             break
         data.branch, fit = told, new
     return hysteresis(fit), float(np.mean(doubt))
+
+
+def _branch_misfits(physics: Physics, fit: Fit, data: Samples, doubt: np.ndarray
+                    ) -> list[np.ndarray]:
+    """(B, M) squared length misfit, in the fit's σ, of each doubtful entry on the loading
+    (+1) and the unloading (−1) branch, the rest on their own.
+
+    Each is measured from its muscle's length constant in its session chosen again with the
+    branches: the fit's constant was fitted with the guesses, and where most of a muscle's
+    rows sit on a wrong branch (one flip missed early, its guess carried on) it lies
+    between the two, and each wrong row fits its wrong branch better. So the constant is
+    the one that lets the most lengths fit one of their branches (each row's misfit capped
+    at ``BRANCH_FIT``), scanned over the values the rows propose; a flip of a whole
+    session cannot be told this way and is not (the constant takes it)."""
+    plain = replace(data, len_weight=None)  # in metres, shifted by one constant per session
+    e = [evaluate(physics, fit, replace(plain, branch=np.where(doubt, b, data.branch)))[0]
+         for b in (1.0, -1.0)]
+    weight = (np.ones_like(e[0]) if data.len_weight is None else data.len_weight
+              ) / fit.sigma_len
+    sessions = np.zeros(data.n, int) if data.session is None else data.session
+    shift = np.zeros_like(e[0])
+    for s in np.unique(sessions):
+        rows = sessions == s
+        for j in range(e[0].shape[1]):
+            if not doubt[rows, j].any():
+                continue
+            ej = np.stack([e[0][rows, j], e[1][rows, j]])  # (2, R)
+            ej[:, ~doubt[rows, j]] = np.where(data.branch[rows, j][~doubt[rows, j]] > 0,
+                                              ej[0, ~doubt[rows, j]], ej[1, ~doubt[rows, j]])
+            candidates = np.unique(np.concatenate([[0.0], ej.ravel()]))
+            z = (ej[:, :, None] - candidates) * weight[rows, j][None, :, None]
+            cost = np.minimum(np.min(z**2, axis=0), BRANCH_FIT**2).sum(axis=0)
+            best = candidates[np.argmin(cost)]
+            if cost[np.argmin(cost)] < cost[candidates == 0.0][0]:
+                shift[rows, j] = best
+    return [((x - shift) * weight) ** 2 for x in e]
+
+
+def tell_all(physics: Physics, real: Samples, ref: Samples | None, info: dict) -> None:
+    """``tell_branches`` on the real recording and its reference."""
+    for data in (real, ref):
+        if data is not None:
+            h, share = tell_branches(physics, data)
+            if data is real and share:
+                info["loadcell_branches_from_lengths"] = {"doubtful_share": share,
+                                                          "hysteresis_N": h}
 
 
 def degrees_for(n_joints: int, n_rows: int) -> list[int]:
@@ -343,7 +390,11 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                 if data is real:
                     info["noise_estimate"] = noise
 
-    weigh(make((degrees[len(degrees) // 2], None), start))
+    def weigh_for(schema: tuple) -> None:  # the file's routing leaves less to length noise
+        weigh(make(schema if schema[1] is not None else (degrees[len(degrees) // 2], None),
+                   start))
+
+    weigh_for((0, None))
     # simplest first: the file's routing as it is (up to each muscle's constant: its
     # motor's homing), then corrected by the degrees the rows allow, the file's routing
     # before none at each degree. Not linearly: a linear correction won held-out rows from
@@ -353,10 +404,10 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
     options = sorted([(d, r) for r in routings
                       for d in ([0, *degrees] if r is not None else degrees)],
                      key=lambda o: (o[0], o[1] is None))
-    schema = choose_schema(lambda o: make(o, start), real, options)
-    if schema[1] is not None:  # the file's routing leaves less to length noise
-        weigh(make(schema, start))
-    degree = schema[0]
+    kappa_start = start
+    schema = choose_schema(lambda o: make(o, kappa_start), real, options)
+    if schema[1] is not None:
+        weigh_for(schema)
     if kappa is None:
         if ref is None:
             raise DiagnosisInputError("need a reference recording or a robot description to "
@@ -371,14 +422,22 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
     else:
         info["kappa_source"] = "description"
     info["kappa"] = start.tolist()
-    info["schema_degree"] = degree
     physics = make(schema, start)
-    for data in (real, ref):
-        if data is not None:
-            h, share = tell_branches(physics, data)
-            if data is real and share:
-                info["loadcell_branches_from_lengths"] = {"doubtful_share": share,
-                                                          "hysteresis_N": h}
+    guesses = [None if d is None else d.branch for d in (real, ref)]
+    tell_all(physics, real, ref, info)
+    # the schema was chosen on the guessed branches, whose errors at the floors (2h of
+    # stretch that follows the path) a free schema can take in and the file's routing
+    # cannot: chosen again on the told ones, and the branches told again with it
+    told = guesses[0] is not None and not np.array_equal(real.branch, guesses[0])
+    again = choose_schema(lambda o: make(o, kappa_start), real, options) if told else schema
+    if again != schema:
+        schema, physics = again, make(again, start)
+        for data, guess in zip((real, ref), guesses, strict=True):
+            if data is not None:
+                data.branch = guess
+        weigh_for(schema)
+        tell_all(physics, real, ref, info)
+    info["schema_degree"] = schema[0]
     info["schema"] = "learned from the real recording"
     info["schema_from_robot_file"] = physics.routing is not None
     if ref is not None:
