@@ -390,11 +390,13 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
                 if data is real:
                     info["noise_estimate"] = noise
 
-    def weigh_for(schema: tuple) -> None:  # the file's routing leaves less to length noise
-        weigh(make(schema if schema[1] is not None else (degrees[len(degrees) // 2], None),
-                   start))
+    def weigh_for(schema: tuple | None) -> None:
+        """Noise levels under the file's routing where it is the schema (it leaves less to
+        length noise), else under a free schema of the middle degree."""
+        free = (degrees[len(degrees) // 2], None)
+        weigh(make(schema if schema is not None and schema[1] is not None else free, start))
 
-    weigh_for((0, None))
+    weigh_for(None)  # before a schema is chosen
     # simplest first: the file's routing as it is (up to each muscle's constant: its
     # motor's homing), then corrected by the degrees the rows allow, the file's routing
     # before none at each degree. Not linearly: a linear correction won held-out rows from
