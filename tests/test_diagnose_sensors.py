@@ -185,22 +185,20 @@ def test_a_name_that_rests_on_guessed_loadcell_branches_is_unexplained(tmp_path,
     assert [e["name"] for e in trusting["effects"]] == ["elastic_stiffness"]
 
 
-def test_the_lengths_tell_the_branches_that_the_readings_cannot(tmp_path, arm):
-    """At the floors a loadcell's reading moves less than its hysteresis can hide, so its
-    branch guessed from the reading's change is often wrong. The muscle's stretch follows
-    its true tension: the length tells which of ``y ± h`` the tension was. Against the
-    simulator's true branches (its noiseless tensions, read with its own 0.5 N band), the
-    branches the lengths tell are wrong several times less often than the guesses."""
+def _narrow_with_true_branches(tmp_path, arm, seed):
+    """A narrow session with loadcell hysteresis, paired with its clean twin, and the
+    simulator's true branches (its noiseless tensions, read with its own 0.5 N band)."""
     import pimbs_learn.diagnosis.inputs as inputs
     from pimbs_recording.format import read_recording
     from pimbs_sim.sensors import HYSTERESIS_DEADBAND
 
-    plan = _narrow_plan(arm, seed=0)
+    plan = _narrow_plan(arm, seed=seed)
     recs = {}
     for name, sensors, noise in (("sim", None, 1.0), ("truth", None, 0.0),
                                  ("real", SensorModel(hysteresis_n=1.16), 1.0)):
-        data, meta = simulate(arm, 100, "al", seed=0, poses=plan, noise=noise,
-                              noise_seed=10000 if name == "sim" else 0, sensors=sensors)
+        data, meta = simulate(arm, 100, "al", seed=seed, poses=plan, noise=noise,
+                              noise_seed=10000 + seed if name == "sim" else seed,
+                              sensors=sensors)
         write_recording(tmp_path / f"{name}.parquet", data, meta)
         recs[name] = read_recording(tmp_path / f"{name}.parquet")
     truth = recs["truth"]
@@ -208,7 +206,18 @@ def test_the_lengths_tell_the_branches_that_the_readings_cannot(tmp_path, arm):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(inputs, "BRANCH_DEADBAND", HYSTERESIS_DEADBAND)
         true_branch = inputs.collection_order(t, truth.tension, truth.length)[2]
-    paired = inputs.pair(recs["real"], recs["sim"], arm)
+    return inputs.pair(recs["real"], recs["sim"], arm), true_branch
+
+
+def test_the_lengths_tell_the_branches_that_the_readings_cannot(tmp_path, arm):
+    """At the floors a loadcell's reading moves less than its hysteresis can hide, so its
+    branch guessed from the reading's change is often wrong. The muscle's stretch follows
+    its true tension: the length tells which of ``y ± h`` the tension was. Against the
+    simulator's true branches, the branches the lengths tell are wrong several times less
+    often than the guesses."""
+    import pimbs_learn.diagnosis.inputs as inputs
+
+    paired, true_branch = _narrow_with_true_branches(tmp_path, arm, seed=0)
     guessed = paired.real.branch.copy()
     physics, _ = inputs.build_physics(paired, -1.0 / arm.K)
     h, share = inputs.tell_branches(physics, paired.real)
@@ -229,24 +238,9 @@ def test_a_flip_the_readings_miss_is_told_with_each_muscles_length_constant(tmp_
     it, 3.9 % of the doubtful entries of this 5-DOF session stayed wrong. With the constant
     chosen again with the branches, under 1 % do."""
     import pimbs_learn.diagnosis.inputs as inputs
-    from pimbs_recording.format import read_recording
-    from pimbs_sim.sensors import HYSTERESIS_DEADBAND
 
     five = ArmModel.load("left-arm-5dof")
-    plan = _narrow_plan(five, seed=3)
-    recs = {}
-    for name, sensors, noise in (("sim", None, 1.0), ("truth", None, 0.0),
-                                 ("real", SensorModel(hysteresis_n=1.16), 1.0)):
-        data, meta = simulate(five, 100, "al", seed=3, poses=plan, noise=noise,
-                              noise_seed=10003 if name == "sim" else 3, sensors=sensors)
-        write_recording(tmp_path / f"{name}.parquet", data, meta)
-        recs[name] = read_recording(tmp_path / f"{name}.parquet")
-    truth = recs["truth"]
-    t = truth.time.astype("datetime64[us]").astype(np.int64) / 1e6
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(inputs, "BRANCH_DEADBAND", HYSTERESIS_DEADBAND)
-        true_branch = inputs.collection_order(t, truth.tension, truth.length)[2]
-    paired = inputs.pair(recs["real"], recs["sim"], five)
+    paired, true_branch = _narrow_with_true_branches(tmp_path, five, seed=3)
     guessed = paired.real.branch.copy()
     inputs.build_physics(paired, -1.0 / five.K, five)
     data = paired.real
