@@ -312,15 +312,14 @@ def _branch_misfits(physics: Physics, fit: Fit, data: Samples, doubt: np.ndarray
         for j in range(e[0].shape[1]):
             if not doubt[rows, j].any():
                 continue
-            ej = np.stack([e[0][rows, j], e[1][rows, j]])  # (2, R)
-            ej[:, ~doubt[rows, j]] = np.where(data.branch[rows, j][~doubt[rows, j]] > 0,
-                                              ej[0, ~doubt[rows, j]], ej[1, ~doubt[rows, j]])
+            # (2, R): a told entry's two rows are equal (its own branch in both)
+            ej = np.stack([e[0][rows, j], e[1][rows, j]])
             candidates = np.unique(np.concatenate([[0.0], ej.ravel()]))
             z = (ej[:, :, None] - candidates) * weight[rows, j][None, :, None]
             cost = np.minimum(np.min(z**2, axis=0), BRANCH_FIT**2).sum(axis=0)
-            best = candidates[np.argmin(cost)]
-            if cost[np.argmin(cost)] < cost[candidates == 0.0][0]:
-                shift[rows, j] = best
+            best = np.argmin(cost)
+            if cost[best] < cost[candidates == 0.0][0]:  # ties keep the fit's constant
+                shift[rows, j] = candidates[best]
     return [((x - shift) * weight) ** 2 for x in e]
 
 
@@ -406,7 +405,8 @@ def build_physics(paired: Paired, kappa: np.ndarray | None, arm=None
     options = sorted([(d, r) for r in routings
                       for d in ([0, *degrees] if r is not None else degrees)],
                      key=lambda o: (o[0], o[1] is None))
-    kappa_start = start
+    kappa_start = start  # both choices compare the options at this elasticity (``start``
+    # takes the reference's correction below)
     schema = choose_schema(lambda o: make(o, kappa_start), real, options)
     if schema[1] is not None:
         weigh_for(schema)
