@@ -24,9 +24,11 @@ from pimbs_learn.diagnosis.model import (
     evaluate,
     fit_schema,
     hysteresis,
+    hysteresis_reversed,
     schema_jacobian,
     sensor_units,
 )
+from pimbs_learn.diagnosis.select import UNIT_Z
 from pimbs_recording.format import Recording
 
 DEFAULT_KAPPA = -1e-3  # start of the elasticity fit: K = 1000, physical sign
@@ -263,13 +265,17 @@ def tell_branches(physics: Physics, data: Samples) -> tuple[float, float]:
     branches), if that one fits within ``BRANCH_FIT`` of the fit's noise (where the stretch
     law does not hold as modelled the guess stays), and the sensors are refitted with them
     (``BRANCH_ROUNDS``) — unless the torques, whose balance needs no stretch law, fit worse
-    with them: then the lengths are not trusted to tell, and the guesses stay."""
+    with them: then the lengths are not trusted to tell, and the guesses stay. Nor are they
+    asked where the sensors' fit has the loadcells reading higher while loading
+    (``hysteresis_reversed``)."""
     if data.branch is None or data.prev_tension is None:
         return 0.0, 0.0
     units = sensor_units(data)
     fit = fit_effects(physics, data, units)
     doubt = np.zeros(data.tension.shape, bool)
     for _ in range(BRANCH_ROUNDS):
+        if hysteresis_reversed(fit, UNIT_Z):  # the lengths would tell the wrong way round
+            break
         doubt = moved_less(data, hysteresis(fit))
         if not doubt.any():
             break

@@ -425,6 +425,21 @@ def hysteresis(fit: Fit) -> float:
                  if u.effect == "loadcell_hysteresis"), 0.0)
 
 
+def hysteresis_reversed(fit: Fit, z: float) -> bool:
+    """Whether the fit puts the loadcells' hysteresis below zero by more than ``z`` standard
+    errors: loadcells that read higher while their tension rises, which none does.
+
+    Something else in the recording has then taken the hysteresis's place: in a narrow
+    session a stiffness change moves each length with its wire's tension, and so with the
+    direction the wire last moved, as a hysteresis of the other sign would
+    (docs/diagnosis-notebook.md). Branches read from the lengths with that sign come out the
+    wrong way round, and per-loadcell effects fitted beside it rest on it."""
+    i = next((i for i, u in enumerate(fit.units) if u.effect == "loadcell_hysteresis"), None)
+    if i is None or fit.cov is None:
+        return False
+    return bool(fit.params[i] < -z * np.sqrt(max(float(fit.cov[i, i]), 0.0)))
+
+
 def evaluate(physics: Physics, fit: Fit, data: Samples, key=None
              ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals of ``data`` under a fit (its effect parameters and body schema)."""
