@@ -55,10 +55,9 @@ from pimbs_learn.diagnosis.model import (
     Unit,
     evaluate,
     hysteresis,
-    hysteresis_reversed,
     units_of,
 )
-from pimbs_learn.diagnosis.select import P_VALUE, UNIT_Z, Candidate, screen
+from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
 
 PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
               "elastic_stiffness")
@@ -236,16 +235,12 @@ def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) 
     (docs/diagnosis-notebook.md). So each muscle of an effect that acts per loadcell is
     refitted, with and without it, on the rows whose branch of that loadcell is told: a
     muscle that fails there (or has too few such rows to name anything) rests on the
-    guesses, not on the arm. Every such muscle rests on them where the fit has the
-    loadcells reading higher while loading (``hysteresis_reversed``): the branches are then
-    wrong in a way the told rows cannot show. Effects of joints and links are not judged
-    this way, nor any effect on a recording that shows no hysteresis (its fit does not pass
-    the naming test against the same model without it)."""
+    guesses, not on the arm. Effects of joints and links are not judged this way, nor
+    any effect on a recording that shows no hysteresis (its fit does not pass the naming
+    test against the same model without it)."""
     unsure = unsure_branches(data, final)
     if unsure is None or named.effect not in PER_MUSCLE:
         return False
-    if hysteresis_reversed(final, UNIT_Z):
-        return True  # fitted beside loadcells that read higher while loading
     keep = [u for u in final.units if u.effect != "loadcell_hysteresis"]
     no_hysteresis = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     if not passes(_lr(final, no_hysteresis), 1, data.n):

@@ -433,7 +433,7 @@ def hysteresis_reversed(fit: Fit, z: float) -> bool:
     session a stiffness change moves each length with its wire's tension, and so with the
     direction the wire last moved, as a hysteresis of the other sign would
     (docs/diagnosis-notebook.md). Branches read from the lengths with that sign come out the
-    wrong way round, and per-loadcell effects fitted beside it rest on it."""
+    wrong way round."""
     i = next((i for i, u in enumerate(fit.units) if u.effect == "loadcell_hysteresis"), None)
     if i is None or fit.cov is None:
         return False
