@@ -312,7 +312,6 @@ def test_loadcells_fitted_to_read_higher_while_loading_tell_no_branches(tmp_path
     way round, and the torque residual those left was named a lighter link. Now the
     lengths are not asked, no link is named, and the stiffness is reported unexplained."""
     import benchmarks.population_diagnosis as bench
-    import pimbs_learn.diagnosis.confound as confound
     import pimbs_learn.diagnosis.inputs as inputs
     from pimbs_sim.conditions import draw_conditions
     from pimbs_sim.population import make_arm
@@ -337,6 +336,5 @@ def test_loadcells_fitted_to_read_higher_while_loading_tell_no_branches(tmp_path
                for u in result["unexplained"]), result["unexplained"]
     # the trap is real: with the sign not checked, the lengths tell and a link is named
     monkeypatch.setattr(inputs, "hysteresis_reversed", lambda fit, z: False)
-    monkeypatch.setattr(confound, "hysteresis_reversed", lambda fit, z: False)
     trusting, _ = diagnose(paths[1], paths[0], robot=spec.description, design_poses=0)
     assert [e["name"] for e in trusting["effects"]] == ["link_mass"], trusting["effects"]

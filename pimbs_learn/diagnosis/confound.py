@@ -55,10 +55,9 @@ from pimbs_learn.diagnosis.model import (
     Unit,
     evaluate,
     hysteresis,
-    hysteresis_reversed,
     units_of,
 )
-from pimbs_learn.diagnosis.select import P_VALUE, UNIT_Z, Candidate, screen
+from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
 
 PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
               "elastic_stiffness")
@@ -225,10 +224,9 @@ def unsure_branches(data: Samples, final: Fit) -> np.ndarray | None:
     return unsure if unsure.any() else None
 
 
-def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate,
-                 without: Fit) -> bool:
+def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) -> bool:
     """Whether ``named`` passes the naming test only with the loadcell branches guessed
-    where the readings cannot tell them (``without``: the fit without it).
+    where the readings cannot tell them.
 
     On a recording whose tensions barely move (a first session near the middle of the
     ranges, every muscle at its floor) most rows' branches are guesses, and a wrong guess
@@ -237,18 +235,12 @@ def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate,
     (docs/diagnosis-notebook.md). So each muscle of an effect that acts per loadcell is
     refitted, with and without it, on the rows whose branch of that loadcell is told: a
     muscle that fails there (or has too few such rows to name anything) rests on the
-    guesses, not on the arm. Every such muscle rests on them where the fit without the name
-    has the loadcells reading higher while loading (``hysteresis_reversed``): the branches
-    are then wrong in a way the told rows cannot show. (Beside the name the sign is not
-    asked: a true offset on a plain 30-row recording pulled a hysteresis it does not have 5
-    standard errors below zero.) Effects of joints and links are not judged this way, nor
+    guesses, not on the arm. Effects of joints and links are not judged this way, nor
     any effect on a recording that shows no hysteresis (its fit does not pass the naming
     test against the same model without it)."""
     unsure = unsure_branches(data, final)
     if unsure is None or named.effect not in PER_MUSCLE:
         return False
-    if hysteresis_reversed(without, UNIT_Z):
-        return True  # loadcells that read higher while loading, even without the name
     keep = [u for u in final.units if u.effect != "loadcell_hysteresis"]
     no_hysteresis = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     if not passes(_lr(final, no_hysteresis), 1, data.n):
@@ -276,7 +268,7 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
-    if branch_bound(physics, data, final, named, without):
+    if branch_bound(physics, data, final, named):
         return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
                        branch_bound=True)
     rivals, contradictions = [], []
