@@ -308,9 +308,10 @@ def test_loadcells_fitted_to_read_higher_while_loading_tell_no_branches(tmp_path
     only the lengths, by an amount that follows each wire's tension and so the direction
     it last moved: fitted with the guessed branches, the loadcells come out reading higher
     while loading (a hysteresis below zero by many standard errors), which no loadcell
-    does. Asked with that sign, the lengths told a third of the doubtful branches the wrong
-    way round, and the torque residual those left was named a lighter link. Now the
-    lengths are not asked, no link is named, and the stiffness is reported unexplained."""
+    does. Asked with that sign, the lengths told doubtful branches the wrong way round (a
+    third of all branches came out wrong, against a fifth guessed), and the torque residual
+    those left was named a link's mass. Now the lengths are not asked, no link is named,
+    and the stiffness is reported unexplained."""
     import benchmarks.population_diagnosis as bench
     import pimbs_learn.diagnosis.inputs as inputs
     from pimbs_sim.conditions import draw_conditions
