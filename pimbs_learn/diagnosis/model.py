@@ -419,10 +419,16 @@ class Fit:
         return replace(self, params=params)
 
 
+def _hysteresis_index(fit: Fit) -> int | None:
+    """Where the loadcells' hysteresis sits among the fit's parameters (None: not fitted)."""
+    return next((i for i, u in enumerate(fit.units) if u.effect == "loadcell_hysteresis"),
+                None)
+
+
 def hysteresis(fit: Fit) -> float:
     """The loadcells' fitted hysteresis h, N (0 where the fit has none)."""
-    return next((abs(float(p)) for u, p in zip(fit.units, fit.params, strict=True)
-                 if u.effect == "loadcell_hysteresis"), 0.0)
+    i = _hysteresis_index(fit)
+    return 0.0 if i is None else abs(float(fit.params[i]))
 
 
 def hysteresis_reversed(fit: Fit, z: float) -> bool:
@@ -434,7 +440,7 @@ def hysteresis_reversed(fit: Fit, z: float) -> bool:
     direction the wire last moved, as a hysteresis of the other sign would
     (docs/diagnosis-notebook.md). Branches read from the lengths with that sign come out the
     wrong way round."""
-    i = next((i for i, u in enumerate(fit.units) if u.effect == "loadcell_hysteresis"), None)
+    i = _hysteresis_index(fit)
     if i is None or fit.cov is None:
         return False
     return bool(fit.params[i] < -z * np.sqrt(max(float(fit.cov[i, i]), 0.0)))
