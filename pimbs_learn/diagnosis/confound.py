@@ -54,10 +54,11 @@ from pimbs_learn.diagnosis.model import (
     Samples,
     Unit,
     evaluate,
+    factors_not_positive,
     hysteresis,
     units_of,
 )
-from pimbs_learn.diagnosis.select import P_VALUE, Candidate, screen
+from pimbs_learn.diagnosis.select import P_VALUE, UNIT_Z, Candidate, screen
 
 PER_MUSCLE = ("tension_offset", "tension_gain", "thermal_drift", "tendon_friction",
               "elastic_stiffness")
@@ -94,10 +95,13 @@ class Verdict:
     contradictions: list = field(default_factory=list)
     # A passes only with the loadcell branches guessed where the readings cannot tell them
     branch_bound: bool = False
+    # A's units whose factor 1 + p the fit does not hold above zero (``factors_not_positive``)
+    impossible: list[Unit] = field(default_factory=list)
 
     @property
     def identified(self) -> bool:
-        return not self.rivals and not self.contradictions and not self.branch_bound
+        return (not self.rivals and not self.contradictions and not self.branch_bound
+                and not self.impossible)
 
 
 def passes(lr: float, df: int, n: int) -> bool:
@@ -263,11 +267,16 @@ def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) 
 def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
           effects: tuple[str, ...] = EFFECTS) -> Verdict:
     """Refit every other candidate effect in ``named``'s place; keep those it cannot beat
-    (none are sought for a name that rests on guessed loadcell branches: ``branch_bound``)."""
+    (none are sought for a name that rests on guessed loadcell branches, ``branch_bound``,
+    or on a factor no arm has, ``factors_not_positive``)."""
     keep = [u for u in final.units if u not in named.units]
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
+    impossible = factors_not_positive(final, named.units, UNIT_Z)
+    if impossible:
+        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
+                       impossible=impossible)
     if branch_bound(physics, data, final, named):
         return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
                        branch_bound=True)

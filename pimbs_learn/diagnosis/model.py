@@ -446,6 +446,33 @@ def hysteresis_reversed(fit: Fit, z: float) -> bool:
     return bool(fit.params[i] < -z * np.sqrt(max(float(fit.cov[i, i]), 0.0)))
 
 
+# effects whose parameter p scales a physical quantity by 1 + p: a loadcell's gain, a
+# wire's elasticity. No loadcell reads tension with a factor of zero or less, and no wire
+# stretches nothing or shortens as it is pulled.
+FACTORS = ("tension_gain", "elastic_stiffness")
+
+
+def factors_not_positive(fit: Fit, units: list[Unit], z: float) -> list[Unit]:
+    """Units of ``units`` whose factor ``1 + p`` the fit does not hold above zero by ``z``
+    standard errors: amounts no arm has.
+
+    In a narrow session a wire's stretch follows its pose nearly as closely as the body
+    schema does, and a stiffness "change" fitted to 1 + s between −0.1 and 0.2 (the
+    elasticity scaled to nothing) explained, on arms with nothing of the kind, what the
+    schema, a thermal drift or guessed loadcell branches had left in the lengths
+    (docs/diagnosis-notebook.md). Such a fit says where the mismatch is, not what it is."""
+    if fit.cov is None:
+        return []
+    out = []
+    for u in units:
+        if u.effect not in FACTORS:
+            continue
+        i = fit.units.index(u)
+        if 1.0 + fit.params[i] < z * np.sqrt(max(float(fit.cov[i, i]), 0.0)):
+            out.append(u)
+    return out
+
+
 def evaluate(physics: Physics, fit: Fit, data: Samples, key=None
              ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals of ``data`` under a fit (its effect parameters and body schema)."""

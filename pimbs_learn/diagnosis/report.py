@@ -200,6 +200,23 @@ def branch_entry(verdict: Verdict, muscles: list[str], final: Fit) -> dict:
             "candidates": [effect, "loadcell_hysteresis"]}
 
 
+FACTOR_OF = {"elastic_stiffness": "the wires' elasticity", "tension_gain": "the loadcells' gain"}
+
+
+def factor_entry(verdict: Verdict, muscles: list[str]) -> dict:
+    """An effect that fits only with a factor no arm has (``factors_not_positive``): the
+    mismatch is reported, not the name."""
+    fit, effect = verdict.fit, verdict.named.effect
+    factors = [1.0 + float(fit.params[fit.units.index(u)]) for u in verdict.impossible]
+    on = ", ".join(sorted(muscles[u.index] for u in verdict.impossible))
+    span = (f"{factors[0]:.2f}" if len(factors) == 1
+            else f"{min(factors):.2f} to {max(factors):.2f}")
+    return {"why": (f"{effect} fits only with {FACTOR_OF[effect]} scaled by {span} on {on}, "
+                    "not clearly above zero: no muscle has that, so something else moves "
+                    "these readings (the body schema, a drift, guessed loadcell branches)"),
+            "candidates": [effect]}
+
+
 def unexplained(ambiguous: list[dict], residual: dict, location: dict,
                 disputed: list[dict] = ()) -> list[dict]:
     """Mismatch no identifiable effect accounts for, with where it is: structure left after

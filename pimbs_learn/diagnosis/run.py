@@ -26,6 +26,7 @@ from pimbs_learn.diagnosis.report import (
     branch_entry,
     disputed_entry,
     effect_entry,
+    factor_entry,
     unexplained,
 )
 from pimbs_learn.diagnosis.select import select_effects
@@ -114,8 +115,9 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     unsure = [v for v in verdicts if v.rivals and not v.contradictions]
     disputed = [v for v in verdicts if v.contradictions]
     guessed = [v for v in verdicts if v.branch_bound]
+    impossible = [v for v in verdicts if v.impossible]
     corrected = final
-    if unsure or disputed or guessed:  # what --corrected undoes: the identified effects
+    if unsure or disputed or guessed or impossible:  # --corrected undoes the identified
         units = [*null.units, *(u for c in sure for u in c.units)]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
@@ -149,7 +151,8 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, residual, location,
                                    [disputed_entry(v, sources) for v in disputed]
-                                   + guessed_entries),
+                                   + guessed_entries
+                                   + [factor_entry(v, paired.muscles) for v in impossible]),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
