@@ -273,13 +273,13 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
+    if branch_bound(physics, data, final, named):
+        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
+                       branch_bound=True)
     impossible = factors_not_positive(final, named.units, UNIT_Z)
     if impossible:
         return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
                        impossible=impossible)
-    if branch_bound(physics, data, final, named):
-        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
-                       branch_bound=True)
     rivals, contradictions = [], []
     for effect in effects:
         if effect == named.effect:

@@ -313,7 +313,9 @@ def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Ve
 def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
                          k: int, noise: dict | None = None) -> dict:
     """The ``k`` poses (and floors) that settle a name resting on guessed loadcell branches
-    (``confound.branch_bound``).
+    (``confound.branch_bound``), or on a factor no arm has (``model.factors_not_positive``): the
+    wire's stretch taken up where its tension follows its pose, which the same steps of
+    tension show apart from the pose.
 
     Its rival is the same model without it, the loadcells' hysteresis left to explain the
     mismatch: the poses are picked as ``separating_poses`` picks them (T-optimal, either
@@ -355,13 +357,16 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
         chosen.append(best)
         score = float(np.min([t.gain(chosen[:-1])[best] for t in tests]))
     floors = pool.floors[chosen]
-    return {"between": [verdict.named.effect, "loadcell_hysteresis"],
+    rival = "loadcell_hysteresis" if verdict.branch_bound else "body_schema"
+    return {"between": [verdict.named.effect, rival],
             "poses": pool.poses[chosen].tolist(), "floors_N": floors.tolist(),
             "expected_likelihood_ratio": score, "branch_step_N": need,
             "meaning": "poses (rad, joint order) and tension floors (N, muscle order), in the "
                        "order to collect them: every muscle's tension changes into each by "
                        "more than the loadcells' hysteresis can hide, so each reading's "
-                       "branch is told; picked to tell the effect from the hysteresis alone",
+                       "branch is told; picked to tell the effect from "
+                       + ("the hysteresis alone" if verdict.branch_bound
+                          else "the model without it"),
             "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
 
 

@@ -130,12 +130,16 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
                  for v in unsure]
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
+    factor_entries = [factor_entry(v, paired.muscles) for v in impossible]
     if arm is not None and design_poses > 0:
         from pimbs_learn.diagnosis.design import branch_telling_poses, separating_poses
 
         noise = model_info.get("noise_estimate")
+        # a factor no arm has is taken up where tension follows pose: the same steps of
+        # every wire's tension that tell the loadcells' branches show its stretch apart
         for design, group, out in ((separating_poses, unsure, ambiguous),
-                                   (branch_telling_poses, guessed, guessed_entries)):
+                                   (branch_telling_poses, guessed, guessed_entries),
+                                   (branch_telling_poses, impossible, factor_entries)):
             for v, entry in zip(group, out, strict=True):
                 _propose(entry, design, arm, physics, data, v, design_poses, noise)
     residual = leftover(physics, final, data, paired.joints, paired.muscles,
@@ -151,8 +155,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, residual, location,
                                    [disputed_entry(v, sources) for v in disputed]
-                                   + guessed_entries
-                                   + [factor_entry(v, paired.muscles) for v in impossible]),
+                                   + guessed_entries + factor_entries),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
