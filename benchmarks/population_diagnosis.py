@@ -109,7 +109,8 @@ SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge12": list(range(486, 526)),
           "judge13": list(range(526, 566)),
           "judge14": list(range(566, 606)),
-          "judge15": list(range(606, 646))}
+          "judge15": list(range(606, 646)),
+          "judge16": list(range(646, 686))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
