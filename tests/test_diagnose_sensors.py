@@ -369,3 +369,20 @@ def test_a_stiffness_that_scales_the_stretch_to_nothing_is_not_named(tmp_path, m
     monkeypatch.setattr(confound, "factors_not_positive", lambda fit, units, z: [])
     trusting, _ = diagnose(real, ref, robot=robot, design_poses=0)
     assert [e["name"] for e in trusting["effects"]] == ["elastic_stiffness"]
+
+
+def test_a_factor_counts_only_held_above_zero_by_its_errors():
+    """A loadcell's gain and a wire's elasticity act as factors ``1 + p``: one the fit does
+    not hold above zero by the naming test's z is an amount no arm has; a halved
+    elasticity measured to ±0.02 is one an arm has, and an offset of any sign is no
+    factor."""
+    from pimbs_learn.diagnosis.model import Fit, Unit, factors_not_positive
+    from pimbs_learn.diagnosis.select import UNIT_Z
+
+    units = [Unit("elastic_stiffness", 0), Unit("elastic_stiffness", 1),
+             Unit("tension_gain", 2), Unit("tension_offset", 3)]
+    se = np.array([0.02, 0.03, 0.1, 0.01])
+    fit = Fit(units, np.array([-0.5, -0.9, -0.96, -5.0]), np.zeros(0), np.ones(4),
+              np.ones(2), 0.0, np.diag(se**2))
+    assert factors_not_positive(fit, units, UNIT_Z) == units[1:3]
+    assert factors_not_positive(fit, units[:1], UNIT_Z) == []
