@@ -363,7 +363,7 @@ def test_a_stiffness_that_scales_the_stretch_to_nothing_is_not_named(tmp_path, m
     result, _ = diagnose(real, ref, robot=robot, design_poses=0)
     assert result["effects"] == [] and result["ambiguous"] == [], result["effects"]
     entry = next(u for u in result["unexplained"]
-                 if u.get("candidates") == ["elastic_stiffness"])
+                 if u.get("candidates") == ["elastic_stiffness", "body_schema"])
     assert "scaled by" in entry["why"] and entry["where"]
     # the trap is real: with every factor taken as it comes, the stiffness is named
     monkeypatch.setattr(confound, "factors_not_positive", lambda fit, units, z: [])

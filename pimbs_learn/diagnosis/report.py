@@ -212,9 +212,9 @@ def factor_entry(verdict: Verdict, muscles: list[str]) -> dict:
     span = (f"{factors[0]:.2f}" if len(factors) == 1
             else f"{min(factors):.2f} to {max(factors):.2f}")
     return {"why": (f"{effect} fits only with {FACTOR_OF[effect]} scaled by {span} on {on}, "
-                    "not clearly above zero: no muscle has that, so something else moves "
-                    "these readings (the body schema, a drift, guessed loadcell branches)"),
-            "candidates": [effect]}
+                    "not clearly above zero: no muscle has that, and the body schema, a drift "
+                    "or guessed loadcell branches may move these readings instead"),
+            "candidates": [effect, "body_schema"]}
 
 
 def unexplained(ambiguous: list[dict], residual: dict, location: dict,
