@@ -273,13 +273,12 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
     without = fit_effects(physics, data, keep, x0=_sub(final, keep), key="full")
     n, df_a = data.n, len(named.units)
     lr_a = _lr(final, without)
+    bic_a = lr_a - df_a * np.log(n)
     if branch_bound(physics, data, final, named):
-        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
-                       branch_bound=True)
+        return Verdict(named, final, without, lr_a, bic_a, [], branch_bound=True)
     impossible = factors_not_positive(final, named.units, UNIT_Z)
     if impossible:
-        return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), [],
-                       impossible=impossible)
+        return Verdict(named, final, without, lr_a, bic_a, [], impossible=impossible)
     rivals, contradictions = [], []
     for effect in effects:
         if effect == named.effect:
@@ -313,8 +312,7 @@ def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,
                             _lr(both, final), lr_b - len(units) * np.log(n), held, wider,
                             ridge))
     rivals.sort(key=lambda r: -r.lr)
-    return Verdict(named, final, without, lr_a, lr_a - df_a * np.log(n), rivals,
-                   contradictions)
+    return Verdict(named, final, without, lr_a, bic_a, rivals, contradictions)
 
 
 def by_recording(physics: Physics, data: Samples, fit_a: Fit, fit_b: Fit) -> list[float] | None:

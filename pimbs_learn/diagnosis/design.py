@@ -357,16 +357,15 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
         chosen.append(best)
         score = float(np.min([t.gain(chosen[:-1])[best] for t in tests]))
     floors = pool.floors[chosen]
-    rival = "loadcell_hysteresis" if verdict.branch_bound else "body_schema"
+    rival, against = (("loadcell_hysteresis", "the hysteresis alone") if verdict.branch_bound
+                      else ("body_schema", "the model without it"))
     return {"between": [verdict.named.effect, rival],
             "poses": pool.poses[chosen].tolist(), "floors_N": floors.tolist(),
             "expected_likelihood_ratio": score, "branch_step_N": need,
             "meaning": "poses (rad, joint order) and tension floors (N, muscle order), in the "
                        "order to collect them: every muscle's tension changes into each by "
                        "more than the loadcells' hysteresis can hide, so each reading's "
-                       "branch is told; picked to tell the effect from "
-                       + ("the hysteresis alone" if verdict.branch_bound
-                          else "the model without it"),
+                       f"branch is told; picked to tell the effect from {against}",
             "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
 
 

@@ -431,6 +431,11 @@ def hysteresis(fit: Fit) -> float:
     return 0.0 if i is None else abs(float(fit.params[i]))
 
 
+def _se(fit: Fit, i: int) -> float:
+    """The standard error of the fit's parameter ``i`` (``fit.cov`` given)."""
+    return float(np.sqrt(max(float(fit.cov[i, i]), 0.0)))
+
+
 def hysteresis_reversed(fit: Fit, z: float) -> bool:
     """Whether the fit puts the loadcells' hysteresis below zero by more than ``z`` standard
     errors: loadcells that read higher while their tension rises, which none does.
@@ -443,7 +448,7 @@ def hysteresis_reversed(fit: Fit, z: float) -> bool:
     i = _hysteresis_index(fit)
     if i is None or fit.cov is None:
         return False
-    return bool(fit.params[i] < -z * np.sqrt(max(float(fit.cov[i, i]), 0.0)))
+    return bool(fit.params[i] < -z * _se(fit, i))
 
 
 # effects whose parameter p scales a physical quantity by 1 + p: a loadcell's gain, a
@@ -463,14 +468,8 @@ def factors_not_positive(fit: Fit, units: list[Unit], z: float) -> list[Unit]:
     (docs/diagnosis-notebook.md). Such a fit says where the mismatch is, not what it is."""
     if fit.cov is None:
         return []
-    out = []
-    for u in units:
-        if u.effect not in FACTORS:
-            continue
-        i = fit.units.index(u)
-        if 1.0 + fit.params[i] < z * np.sqrt(max(float(fit.cov[i, i]), 0.0)):
-            out.append(u)
-    return out
+    index = {u: fit.units.index(u) for u in units if u.effect in FACTORS}
+    return [u for u, i in index.items() if 1.0 + fit.params[i] < z * _se(fit, i)]
 
 
 def evaluate(physics: Physics, fit: Fit, data: Samples, key=None
