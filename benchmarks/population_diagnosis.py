@@ -23,7 +23,10 @@ user with the recording, its clean reference and the robot description would
   branches), the **separating poses** it proposes (``--poses-out``), collected on the
   same arm with the same concealed effects and sensors (PIMBS's simulator, or MuJoCo as
   the plant with the same plant file) into ``OUT/settle``, and both recordings diagnosed
-  together.
+  together;
+* for every other recording whose rest is not noise and that proposes poses (the poses
+  farthest from the recorded ones, ``design.unseen_poses``), the same: counted apart from
+  the confounded cases, as **rests asked** (there was no rival to tell apart).
 
 Scoring (decided before any run, see docs/diagnosis-notebook.md "On a population of drawn
 arms"):
@@ -110,7 +113,8 @@ SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge13": list(range(526, 566)),
           "judge14": list(range(566, 606)),
           "judge15": list(range(606, 646)),
-          "judge16": list(range(646, 686))}
+          "judge16": list(range(646, 686)),
+          "judge17": list(range(686, 726))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this
@@ -402,10 +406,14 @@ def diagnose_one(line: dict[str, Any], pop: Path, out: Path, twins: Path, kind: 
         "targets": want, "nuisances": nuisances(truth), **said,
         "outcome": outcome(said, want), "truth_in_either": truth_in_either(said, want),
         "cpu_s": round(time.process_time() - c0, 2)}
-    if settle and (said["either"] or any(u.get("separating_poses")
-                                         for u in result["unexplained"])):
+    asked = [u for u in result["unexplained"] if u.get("separating_poses")]
+    if settle and (said["either"] or asked):
         rec["settle"] = settle_one(line, pop, out, kind, result, real, reference, want, cond,
                                    plant)
+        # an unexplained entry with candidates is a question between explanations; a rest
+        # without any is not
+        rec["settle"]["confounded"] = bool(said["either"]
+                                           or any(u.get("candidates") for u in asked))
     rec["cpu_s_total"] = round(time.process_time() - t_cpu, 2)
     rec["cpu_s_twin"] = round(t_made, 2) if kind != "recording" else 0.0
     rec["wall_s"] = round(time.perf_counter() - t_wall, 2)
@@ -507,13 +515,15 @@ def _tables(rows: list[dict[str, Any]], sim: str, session: str) -> str:
         c = Counter(r["outcome"] for r in group)
         out.append(f"| {label} | {len(group)} | "
                    + " | ".join(_share(c[k], len(group)) for k in ORDER_NULLS) + " |")
-    conf = [r for r in rows if r.get("settle")]
-    if conf:
-        c = Counter(r["settle"]["outcome"] for r in conf)
-        res = sum(r["settle"]["resolved"] for r in conf)
-        out.append(f"\nconfounded cases: {len(conf)}; resolved by their separating poses "
-                   f"{_share(res, len(conf))} (after: "
-                   + ", ".join(f"{k} {v}" for k, v in sorted(c.items())) + ")")
+    for label, group in (("confounded cases", _confounded(rows, True)),
+                         ("rests asked where the recording had not been",
+                          _confounded(rows, False))):
+        if group:
+            c = Counter(r["settle"]["outcome"] for r in group)
+            res = sum(r["settle"]["resolved"] for r in group)
+            out.append(f"\n{label}: {len(group)}; resolved by their poses "
+                       f"{_share(res, len(group))} (after: "
+                       + ", ".join(f"{k} {v}" for k, v in sorted(c.items())) + ")")
     wrong = Counter(n for r in rows for n in r["named"] if n not in r["targets"])
     if wrong:
         out.append("effects named wrongly: " + ", ".join(f"{k} {v}"
@@ -539,6 +549,12 @@ def _probes(probes: list[dict[str, Any]]) -> str:
     return "\n".join(out)
 
 
+def _confounded(rows: list[dict[str, Any]], confounded: bool) -> list[dict[str, Any]]:
+    """The settled rows that were confounded (``confounded``), or rests asked."""
+    return [r for r in rows if r.get("settle")
+            and r["settle"].get("confounded", True) == confounded]
+
+
 def _share(k: int, n: int) -> str:
     return f"{k} ({100 * k / n:.0f} %)" if n else "–"
 
@@ -550,7 +566,7 @@ def bars(lines: list[dict[str, Any]]) -> str:
         rows = [r for r in lines if r["simulator"] == sim and r["kind"] in kinds]
         eff = [r for r in rows if r["targets"]]
         nul = [r for r in rows if not r["targets"]]
-        conf = [r for r in rows if r.get("settle")]
+        conf = _confounded(rows, True)
         if not rows:
             continue
         exact = sum(r["outcome"] == "exact" for r in eff)

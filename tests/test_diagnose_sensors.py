@@ -19,6 +19,7 @@ from pimbs_recording.format import write_recording
 from pimbs_sim.effects import parse_effect
 from pimbs_sim.sensors import SensorModel
 from pimbs_sim.simulate import simulate
+from tests.drawn_arms import drawn_narrow_pair
 
 ROBOT = "two-link-4-muscle"
 LAG_S, HYSTERESIS_N = 0.3, 1.2  # leak exp(-1/0.3) = 3.6 % of the previous reading
@@ -301,30 +302,6 @@ def test_a_narrow_session_keeps_the_files_moment_arms(tmp_path):
     assert "the robot file's routing + a constant per muscle" in text_report(result)
 
 
-def _drawn_narrow_pair(tmp_path, seed: int, effects: list[str]):
-    """A population arm's narrow session on PIMBS' simulator, as the benchmark records it:
-    (arm's description, real recording, reference), the concealed effects checked."""
-    import benchmarks.population_diagnosis as bench
-    from pimbs_sim.conditions import draw_conditions
-    from pimbs_sim.population import make_arm
-
-    spec = make_arm(seed, "mujoco", tmp_path / "arm")
-    arm = spec.load()
-    truth = draw_conditions(spec, "ours")
-    assert [e["name"] for e in truth.effects] == effects
-    noise_seed = seed + bench.NARROW_SEED
-    plan = bench.narrow_plan({"description": spec.description, "seed": seed}, tmp_path)
-    paths = []
-    for name, kwargs in (("sim", {"noise_seed": noise_seed + bench.REFERENCE_NOISE}),
-                         ("real", {"effects": truth.sim_effects(), "sensors": truth.sensors,
-                                   "noise": truth.noise})):
-        data, meta = simulate(arm, len(plan.poses), "al", seed=noise_seed, poses=plan,
-                              **kwargs)
-        paths.append(tmp_path / f"{name}.parquet")
-        write_recording(paths[-1], data, meta)
-    return spec.description, paths[1], paths[0]
-
-
 def test_loadcells_fitted_to_read_higher_while_loading_tell_no_branches(tmp_path,
                                                                          monkeypatch):
     """A drawn 3-DOF arm (population seed 589) in a narrow session, its muscles stiffer
@@ -338,7 +315,7 @@ def test_loadcells_fitted_to_read_higher_while_loading_tell_no_branches(tmp_path
     and the stiffness is reported unexplained."""
     import pimbs_learn.diagnosis.inputs as inputs
 
-    robot, real, ref = _drawn_narrow_pair(tmp_path, 589, ["elastic_stiffness"])
+    robot, real, ref = drawn_narrow_pair(tmp_path, 589, ["elastic_stiffness"])[:3]
     result, _ = diagnose(real, ref, robot=robot, design_poses=0)
     assert result["effects"] == [] and result["ambiguous"] == [], result["effects"]
     assert "loadcell_branches_from_lengths" not in result["model"]
@@ -359,7 +336,7 @@ def test_a_stiffness_that_scales_the_stretch_to_nothing_is_not_named(tmp_path, m
     without one; it is reported as unexplained, with the factors, and nothing is named."""
     import pimbs_learn.diagnosis.confound as confound
 
-    robot, real, ref = _drawn_narrow_pair(tmp_path, 636, [])
+    robot, real, ref = drawn_narrow_pair(tmp_path, 636, [])[:3]
     result, _ = diagnose(real, ref, robot=robot, design_poses=0)
     assert result["effects"] == [] and result["ambiguous"] == [], result["effects"]
     entry = next(u for u in result["unexplained"]

@@ -98,6 +98,47 @@ def test_what_no_effect_explains_is_reported_with_where(tmp_path, reference):
     assert "NOT noise" in text_report(result)
 
 
+def test_a_rest_alone_is_asked_where_the_session_has_not_been(tmp_path):
+    """A drawn 3-DOF arm (population seed 337) with a tendon friction and a motor-heated
+    drift, in a narrow session (poses near the middle of its ranges, every wire at its
+    floor): it names the friction and leaves a rest that is not noise, with nothing to
+    tell it from. The poses proposed for it lie where the session has not been, or at
+    tensions it never held; collected on the same arm, the two recordings together name both
+    effects and nothing else. Thirty more poses of the same narrow kind do not: the drift
+    stays one of three explanations."""
+    import benchmarks.population_diagnosis as bench
+    from pimbs_arm.poses_file import pose_plan_csv
+    from pimbs_learn.diagnosis.design import design_csv
+    from tests.drawn_arms import collect_poses, drawn_narrow_pair
+
+    drawn = ["tendon_friction", "thermal_drift"]
+    robot, real, ref, truth = drawn_narrow_pair(tmp_path, 337, drawn, "viapoint")
+    result, _ = diagnose(real, ref, robot=robot)
+    assert [e["name"] for e in result["effects"]] == ["tendon_friction"]
+    assert result["ambiguous"] == []
+    (rest,) = result["unexplained"]
+    assert "not noise" in rest["why"] and rest["separating_poses"]
+    asked = np.array(rest["separating_poses"]["poses"])
+    floors = np.array(rest["separating_poses"]["floors_N"])
+    seen = read_recording(real)
+    beyond = ((asked < seen.theta.min(0)) | (asked > seen.theta.max(0))).any(1)
+    tauter = (floors > seen.tension.max(0)).any(1)
+    assert len(asked) == 30 and (beyond | tauter).all()
+    assert "poses farthest from the recorded ones" in text_report(result)
+    csv, count = design_csv(result)
+    assert count == 30
+    real2, ref2 = collect_poses(tmp_path / "asked", robot, truth, 337, csv)
+    both, _ = diagnose([real, real2], [ref, ref2], robot=robot)
+    assert sorted(e["name"] for e in both["effects"]) == drawn
+    assert both["ambiguous"] == []
+    # the same number of poses where the session already was
+    more = bench.narrow_plan({"description": robot, "seed": 338}, tmp_path)
+    same = pose_plan_csv(ArmModel.load(robot), more.poses[:30], more.floors[:30])
+    real3, ref3 = collect_poses(tmp_path / "same", robot, truth, 337, same)
+    narrow, _ = diagnose([real, real3], [ref, ref3], robot=robot)
+    assert "thermal_drift" not in [e["name"] for e in narrow["effects"]]
+
+
 def _pair(tmp_path, arm, n, effects=(), seed=5, map_kind="al"):
     paths = []
     for name, hidden in (("sim", ()), ("real", effects)):

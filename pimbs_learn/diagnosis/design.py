@@ -369,6 +369,51 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
             "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
 
 
+def unseen_poses(arm: ArmModel, physics: Physics, data: Samples, k: int,
+                 noise: dict | None = None) -> dict:
+    """The ``k`` poses (and floors) farthest from every recorded row, for a rest that is not
+    noise (``leftover``) and that no effect of the library accounts for.
+
+    There is no rival to tell it from, so nothing to optimise a contrast on: what the
+    recording lacks is range. A session held in a narrow box of poses and tensions leaves
+    an effect that only shows across the range (a mass against a gain, a drift against a
+    routing) looking like an unnamed rest, and the same effect is named where the arm
+    was asked more widely. The candidates are the whole plan's (``candidate_pool``: every
+    joint's range, each wire at its drawn, low and high floor); each next pose is the one
+    farthest from the recorded rows and the poses chosen so far (greedy max-min), in joint
+    angles over each joint's span and tensions over the ATL-Map's top, each group weighed
+    alike whatever the number of joints and muscles; they are held in a gentle order."""
+    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    pool = candidate_pool(arm)
+    clean = predict(arm, pool, None, physics, noise)
+    span = np.maximum(np.ptp(np.vstack([pool.poses, data.theta]), axis=0), 1e-9)
+    top = atl_floor_range(arm)[1]
+
+    def where(theta: np.ndarray, tension: np.ndarray) -> np.ndarray:
+        return np.hstack([theta / span / np.sqrt(theta.shape[1]),
+                          tension / top / np.sqrt(tension.shape[1])])
+
+    cand = where(pool.poses, clean.tension)
+    near = np.min(np.linalg.norm(cand[:, None, :] - where(data.theta, data.tension)[None],
+                                 axis=2), axis=1)
+    chosen: list[int] = []
+    for _ in range(min(k, len(pool.poses))):
+        best = int(np.argmax(near))
+        chosen.append(best)
+        near = np.minimum(near, np.linalg.norm(cand - cand[best], axis=1))
+        near[chosen] = -np.inf
+    chosen = gentle_order(clean, chosen, noise)
+    floors = pool.floors[chosen]
+    return {"between": ["what is left", "the effects of the library"],
+            "poses": pool.poses[chosen].tolist(), "floors_N": floors.tolist(),
+            "expected_likelihood_ratio": None,
+            "meaning": "poses (rad, joint order) and tension floors (N, muscle order), in the "
+                       "order to collect them, farthest from the recorded ones: what is left "
+                       "shows what it depends on where the recording has not been; there is "
+                       "no rival to score, so no expected likelihood ratio",
+            "csv": pose_plan_csv(arm, pool.poses[chosen], floors)}
+
+
 def design_csv(result: dict) -> tuple[str, int]:
     """One poses file for every ambiguity of a diagnosis and every name that rests on
     guessed loadcell branches (one session settles them all), and how many poses it holds."""

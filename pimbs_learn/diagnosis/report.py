@@ -217,23 +217,29 @@ def factor_entry(verdict: Verdict, muscles: list[str]) -> dict:
             "candidates": [effect, "body_schema"]}
 
 
-def unexplained(ambiguous: list[dict], residual: dict, location: dict,
+def rest_entry(residual: dict) -> dict | None:
+    """What the fitted effects leave, where it is not noise (``leftover``): the channels and
+    what each depends on; None where it is noise."""
+    if residual["consistent_with_noise"]:
+        return None
+    return {"why": "what is left after the fitted effects is not noise",
+            "where": [f"{s['channel']} depends on "
+                      + ", ".join(w["factor"] for w in s["depends_on"][:3])
+                      for s in residual["structure"]]}
+
+
+def unexplained(ambiguous: list[dict], rest: dict | None, location: dict,
                 disputed: list[dict] = ()) -> list[dict]:
-    """Mismatch no identifiable effect accounts for, with where it is: structure left after
-    every fitted explanation, ambiguities with more explanations than can be listed, and
-    effects the recordings disagree on."""
+    """Mismatch no identifiable effect accounts for, with where it is: effects the
+    recordings disagree on (``disputed``), ambiguities with more explanations than can be
+    listed, and structure left after every fitted explanation (``rest_entry``)."""
     out = [{**d, "where": location["summary"]} for d in disputed]
     for amb in ambiguous:
         if len(amb["either"]) > MAX_EITHER:
             out.append({"why": f"{len(amb['either'])} effects explain it about equally",
                         "candidates": [o["name"] for o in amb["either"]],
                         "where": location["summary"]})
-    if not residual["consistent_with_noise"]:
-        out.append({"why": "what is left after the fitted effects is not noise",
-                    "where": [f"{s['channel']} depends on "
-                              + ", ".join(w["factor"] for w in s["depends_on"][:3])
-                              for s in residual["structure"]]})
-    return out
+    return out + ([rest] if rest else [])
 
 
 def _option_line(o: dict) -> list[str]:
@@ -305,7 +311,12 @@ def ambiguity_text(result: dict) -> list[str]:
                              d["likelihood_ratio_of_first_over_rival"].items()))
         lines += [f"  - {w}" for w in u["where"]]
         poses = u.get("separating_poses")
-        if poses:
+        if poses and "branch_step_N" not in poses:
+            lines.append(f"  {len(poses['poses'])} poses farthest from the recorded ones would "
+                         "show what it depends on: collect them in their order with `pimbs "
+                         "collect --poses-file FILE` (written by --poses-out) and diagnose "
+                         "both recordings together")
+        elif poses:
             lines.append(f"  {len(poses['poses'])} poses, each loading or unloading every "
                          f"wire by more than {poses['branch_step_N']:.1f} N, would tell them "
                          "apart: collect them in their order with `pimbs collect --poses-file "

@@ -27,6 +27,7 @@ from pimbs_learn.diagnosis.report import (
     disputed_entry,
     effect_entry,
     factor_entry,
+    rest_entry,
     unexplained,
 )
 from pimbs_learn.diagnosis.select import select_effects
@@ -39,9 +40,9 @@ FIT_METRIC = ("mean squared held-out residual of lengths and torques, each chann
 
 
 def _propose(entry: dict, design, *args) -> None:
-    """``entry["separating_poses"]`` = ``design(*args)`` (``design.separating_poses`` or
-    ``design.branch_telling_poses``), or None with the reason where the arm could not hold
-    an explanation's poses."""
+    """``entry["separating_poses"]`` = ``design(*args)`` (``design.separating_poses``,
+    ``design.branch_telling_poses`` or ``design.unseen_poses``), or None with the reason
+    where the arm could not hold an explanation's poses."""
     from pimbs_arm.model import InfeasiblePoseError
 
     try:
@@ -131,8 +132,15 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                  for v in unsure]
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
     factor_entries = [factor_entry(v, paired.muscles) for v in impossible]
+    residual = leftover(physics, final, data, paired.joints, paired.muscles,
+                        paired.reference)
+    rest = rest_entry(residual)
     if arm is not None and design_poses > 0:
-        from pimbs_learn.diagnosis.design import branch_telling_poses, separating_poses
+        from pimbs_learn.diagnosis.design import (
+            branch_telling_poses,
+            separating_poses,
+            unseen_poses,
+        )
 
         noise = model_info.get("noise_estimate")
         # a factor no arm has is taken up where tension follows pose: the same steps of
@@ -142,8 +150,11 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                                    (branch_telling_poses, impossible, factor_entries)):
             for v, entry in zip(group, out, strict=True):
                 _propose(entry, design, arm, physics, data, v, design_poses, noise)
-    residual = leftover(physics, final, data, paired.joints, paired.muscles,
-                        paired.reference)
+        # a rest beside an unsettled question is often what that question leaves: its
+        # poses come first; alone, it is asked where the recording has not been
+        if rest and not any(e.get("separating_poses") for e in
+                            (*ambiguous, *guessed_entries, *factor_entries)):
+            _propose(rest, unseen_poses, arm, physics, data, design_poses, noise)
     sources = [str(r.path) for r in reals]
     result = {
         "real": sources[0], "reference": str(refs[0].path) if refs else None,
@@ -153,7 +164,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "rows": data.n, "joints": paired.joints, "muscles": paired.muscles,
         "effects": entries,
         "ambiguous": ambiguous,
-        "unexplained": unexplained(ambiguous, residual, location,
+        "unexplained": unexplained(ambiguous, rest, location,
                                    [disputed_entry(v, sources) for v in disputed]
                                    + guessed_entries + factor_entries),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
