@@ -66,11 +66,11 @@ def command(real: tuple[Path, ...], reference: tuple[Path, ...], robot: str | No
     text, count = design_csv(result)
     if poses_out and count:
         write_text_atomic(poses_out, text)
-        click.echo(f"\nposes that would tell them apart: {poses_out} ({count} poses; collect "
+        click.echo(f"\nposes to collect next: {poses_out} ({count} poses; collect "
                    f"them with `pimbs collect --poses-file {poses_out}`, simulate their "
                    f"reference with `pimbs simulate --poses-file {poses_out}`)")
     elif poses_out:
-        click.echo(f"\n{poses_out} not written: nothing here needs poses to tell apart")
+        click.echo(f"\n{poses_out} not written: nothing here asks for more poses")
     if json_out:
         write_text_atomic(json_out, json.dumps(result, indent=2) + "\n")
         click.echo(f"\nJSON: {json_out}")

@@ -49,6 +49,9 @@ def collect_poses(tmp_path: Path, description: Path, truth, seed: int, csv: str
 
 def _session(tmp_path: Path, stem: str, description: Path, truth, noise_seed: int, plan,
              map_kind: str) -> tuple[Path, Path]:
+    """(real, reference) of ``plan`` on the drawn arm: the real one with the drawn effects,
+    sensors and noise, the reference clean with noise of its own, as the benchmark pairs
+    them."""
     import benchmarks.population_diagnosis as bench
     from pimbs_arm.model import ArmModel
 

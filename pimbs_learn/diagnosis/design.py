@@ -375,14 +375,14 @@ def unseen_poses(arm: ArmModel, physics: Physics, data: Samples, k: int,
     noise (``leftover``) and that no effect of the library accounts for.
 
     There is no rival to tell it from, so nothing to optimise a contrast on: what the
-    recording lacks is range. A session held in a narrow box of poses and tensions leaves
-    an effect that only shows across the range (a mass against a gain, a drift against a
-    routing) looking like an unnamed rest, and the same effect is named where the arm
-    was asked more widely. The candidates are the whole plan's (``candidate_pool``: every
-    joint's range, each wire at its drawn, low and high floor); each next pose is the one
-    farthest from the recorded rows and the poses chosen so far (greedy max-min), in joint
-    angles over each joint's span and tensions over the ATL-Map's top, each group weighed
-    alike whatever the number of joints and muscles; they are held in a gentle order."""
+    recording lacks is range. A session held in a narrow box of poses at light tensions
+    leaves an effect that only shows across the range (a drift that needs the motors
+    loaded and rested) looking like an unnamed rest, where a wider session names it. The
+    candidates are the whole plan's (``candidate_pool``: every joint's range, each wire at
+    its drawn, low and high floor); each next pose is the one farthest from the recorded
+    rows and the poses chosen so far (greedy max-min), in joint angles over each joint's
+    span and tensions over the ATL-Map's top, each group weighed alike whatever the number
+    of joints and muscles; they are held in a gentle order."""
     noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
     pool = candidate_pool(arm)
     clean = predict(arm, pool, None, physics, noise)
@@ -415,8 +415,9 @@ def unseen_poses(arm: ArmModel, physics: Physics, data: Samples, k: int,
 
 
 def design_csv(result: dict) -> tuple[str, int]:
-    """One poses file for every ambiguity of a diagnosis and every name that rests on
-    guessed loadcell branches (one session settles them all), and how many poses it holds."""
+    """One poses file for every ambiguity of a diagnosis, every name that rests on guessed
+    loadcell branches or on a factor no arm has, and a rest asked where the recording has
+    not been (one session settles them all), and how many poses it holds."""
     entries = [*result.get("ambiguous", []), *result.get("unexplained", [])]
     rows = [a["separating_poses"]["csv"].splitlines() for a in entries
             if a.get("separating_poses")]
