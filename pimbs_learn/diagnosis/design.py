@@ -60,6 +60,8 @@ from pimbs_sim.simulate import simulate
 
 POOL = 120          # candidate poses, each with three tension floors
 POOL_SEED = 7919    # the candidates' seed: one plan for one arm, whatever the recording
+# the sensors' noise the designs assume where the diagnosis gives no estimate of its own
+NOISE = {"tension_N": 0.3, "length_m": 5e-6}
 
 
 def candidate_pool(arm: ArmModel, n: int = POOL, seed: int = POOL_SEED) -> PosePlan:
@@ -280,7 +282,7 @@ def gentle_order(pred: Samples, rows: list[int], noise: dict) -> list[int]:
 def separating_poses(arm: ArmModel, physics: Physics, data: Samples, verdict: Verdict,
                      k: int, noise: dict | None = None) -> dict:
     """The ``k`` poses (and floors) that best tell the named effect from its rivals."""
-    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    noise = noise or NOISE
     pool = candidate_pool(arm)
     models = [verdict.fit, *(r.fit for r in verdict.rivals)]
     preds = [predict(arm, pool, m, physics, noise) for m in models]
@@ -328,7 +330,7 @@ def branch_telling_poses(arm: ArmModel, physics: Physics, data: Samples, verdict
     schema to reach where it was never fitted. Their floors (all low, at half the ATL top,
     at the top) make such steps available from almost any pose; where none is, the pose
     whose smallest change is largest comes next."""
-    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    noise = noise or NOISE
     pool = pool_within(arm, data.theta)
     if len(pool.poses) < k:  # the recording's box holds too few: the whole ranges
         pool = candidate_pool(arm)
@@ -383,7 +385,7 @@ def unseen_poses(arm: ArmModel, physics: Physics, data: Samples, k: int,
     rows and the poses chosen so far (greedy max-min), in joint angles over each joint's
     span and tensions over the ATL-Map's top, each group weighed alike whatever the number
     of joints and muscles; they are held in a gentle order."""
-    noise = noise or {"tension_N": 0.3, "length_m": 5e-6}
+    noise = noise or NOISE
     pool = candidate_pool(arm)
     clean = predict(arm, pool, None, physics, noise)
     span = np.maximum(np.ptp(np.vstack([pool.poses, data.theta]), axis=0), 1e-9)
