@@ -114,7 +114,8 @@ SPLITS = {"dev": [s for s in range(0, 39) if s % 2 == 0],
           "judge14": list(range(566, 606)),
           "judge15": list(range(606, 646)),
           "judge16": list(range(646, 686)),
-          "judge17": list(range(686, 726))}
+          "judge17": list(range(686, 726)),
+          "judge18": list(range(726, 766))}
 AS_TARGET = {"plant_tendon_friction": "tendon_friction"}  # plant physics that is vocabulary
 NUISANCES = ("plant_joint_friction", "plant_joint_stiffness", "routing")
 SETTLE_SEED = 1000  # the settling session's noise seed: arm seed + this

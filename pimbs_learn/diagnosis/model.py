@@ -80,6 +80,13 @@ def link_place(physics: Physics, unit: Unit, joints: list[str]) -> str:
     return f"links beyond {joints[unit.index]}"
 
 
+# Physics outside the vocabulary, fitted only to ask whether it takes a name's place
+# (``confound.outside_rival``), never named: a passive spring at one joint — a cover, a
+# cable bundle, a joint's stop — whose torque ``rate·θ + torque`` pulls toward the angle
+# ``−torque/rate`` (units ``Unit(SPRING, joint, "rate")`` in N·m/rad, restoring when
+# positive, and ``Unit(SPRING, joint, "torque")`` in N·m at the description's zero).
+SPRING = "joint_spring"
+
 SENSOR = ("sensor_lag", "loadcell_hysteresis")
 MAX_LAG = 0.9  # share of the previous reading: beyond it the undone reading is mostly noise
 
@@ -254,6 +261,7 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
     gravity_extra = np.zeros(physics.gravity.coef.shape)
     gain = np.zeros(f.shape[1])
     scale = np.ones(f.shape[1])
+    rate, torque = np.zeros(theta.shape[1]), np.zeros(theta.shape[1])  # ``SPRING``
     for u, p in zip(units, params, strict=True):
         if u.effect in SENSOR:
             continue
@@ -271,6 +279,8 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
             kappa[u.index] *= 1.0 + p
         elif u.effect == "joint_offset":
             delta[u.index] = p
+        elif u.effect == SPRING:
+            (rate if u.part == "rate" else torque)[u.index] = p
         elif u.effect == "link_mass":
             if u.part == "link":
                 gravity_extra += p * physics.link_gravity[u.index]
@@ -294,6 +304,8 @@ def apply_effects(physics: Physics, data: Samples, units: list[Unit],
         tau = tau + physics.gravity.torque(theta) - physics.gravity.torque(data.theta)
     if np.any(gravity_extra):
         tau = tau + physics.gravity.torque(theta, gravity_extra)
+    if np.any(rate) or np.any(torque):  # the muscles also hold the spring's pull
+        tau = tau + rate * theta + torque
     return State(theta, f, kappa, tau, factor, length, len_noise)
 
 

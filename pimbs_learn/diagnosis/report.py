@@ -217,6 +217,31 @@ def factor_entry(verdict: Verdict, muscles: list[str]) -> dict:
             "candidates": [effect, "body_schema"]}
 
 
+def spring_entry(verdict: Verdict, joints: list[str], muscles: list[str]) -> dict:
+    """An effect a passive joint spring explains clearly better (``confound.outside_rival``):
+    the spring is outside the effects named here, so the mismatch is reported with it, and
+    neither is named."""
+    a, spring = verdict.named, verdict.outside
+    fit = spring.fit
+    joint = joints[spring.units[0].index]
+    rate, torque = (float(fit.params[fit.units.index(u)]) for u in spring.units)
+    se = _se(fit, fit.units.index(spring.units[0]))
+    on = sorted({muscles[u.index] for u in a.units if u.index >= 0}
+                ) if a.effect in PER_MUSCLE else []
+    return {"why": (f"{a.effect}{' on ' + ', '.join(on) if on else ''} fits, but a passive "
+                    f"spring at {joint} fits clearly better ({rate:.3g} N·m/rad"
+                    + (f" ± {se:.2g}" if se else "") + f" pulling toward {-torque / rate:.3g} "
+                    f"rad; ΔBIC {spring.delta_bic:.0f} against {verdict.delta_bic:.0f}) and "
+                    "leaves nothing for it: a joint spring (a cover, cables, a joint's stop) "
+                    "is not among the effects named here"),
+            "joint_spring": {"joint": joint, "rate_Nm_per_rad": rate,
+                             "rate_se": se, "rest_angle_rad": -torque / rate,
+                             "likelihood_ratio": spring.lr, "delta_bic": spring.delta_bic,
+                             "likelihood_ratio_of_effect_given_spring":
+                                 spring.lr_named_given},
+            "instead_of": a.effect}
+
+
 def rest_entry(residual: dict) -> dict | None:
     """What the fitted effects leave, where it is not noise (``leftover``): the channels and
     what each depends on; None where it is noise."""

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from pimbs_learn.diagnosis.confound import judge
+from pimbs_learn.diagnosis.confound import judge, springs_in_place
 from pimbs_learn.diagnosis.detect import detectable
 from pimbs_learn.diagnosis.fit import cross_validate, fit_effects
 from pimbs_learn.diagnosis.inputs import (
@@ -28,6 +28,7 @@ from pimbs_learn.diagnosis.report import (
     effect_entry,
     factor_entry,
     rest_entry,
+    spring_entry,
     unexplained,
 )
 from pimbs_learn.diagnosis.select import select_effects
@@ -117,8 +118,9 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     disputed = [v for v in verdicts if v.contradictions]
     guessed = [v for v in verdicts if v.branch_bound]
     impossible = [v for v in verdicts if v.impossible]
+    sprung = [v for v in verdicts if v.outside is not None]
     corrected = final
-    if unsure or disputed or guessed or impossible:  # --corrected undoes the identified
+    if unsure or disputed or guessed or impossible or sprung:  # --corrected undoes the identified
         units = [*null.units, *(u for c in sure for u in c.units)]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
@@ -132,8 +134,9 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                  for v in unsure]
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
     factor_entries = [factor_entry(v, paired.muscles) for v in impossible]
-    residual = leftover(physics, final, data, paired.joints, paired.muscles,
-                        paired.reference)
+    spring_entries = [spring_entry(v, paired.joints, paired.muscles) for v in sprung]
+    residual = leftover(physics, springs_in_place(physics, data, final, verdicts), data,
+                        paired.joints, paired.muscles, paired.reference)
     rest = rest_entry(residual)
     if arm is not None and design_poses > 0:
         from pimbs_learn.diagnosis.design import (
@@ -166,7 +169,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         "ambiguous": ambiguous,
         "unexplained": unexplained(ambiguous, rest, location,
                                    [disputed_entry(v, sources) for v in disputed]
-                                   + guessed_entries + factor_entries),
+                                   + guessed_entries + factor_entries + spring_entries),
         "fit": {"metric": FIT_METRIC, "before": cv_null["score"], "after": cv_final["score"],
                 "torque_rms_Nm": {"before": cv_null["torque_rms"],
                                   "after": cv_final["torque_rms"]},
