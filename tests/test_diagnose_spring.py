@@ -10,10 +10,13 @@ drawn from seed 11 (two joints, six muscles) is small enough to record in second
 from __future__ import annotations
 
 import pytest
+from scipy.stats import chi2
 
 from pimbs_hw.mock.mujoco_recording import record_plant
 from pimbs_learn.diagnosis import confound
+from pimbs_learn.diagnosis.report import text_report
 from pimbs_learn.diagnosis.run import diagnose
+from pimbs_learn.diagnosis.select import P_VALUE
 from pimbs_recording.format import write_recording
 from pimbs_sim.conditions import write_plant
 from pimbs_sim.effects import Effect
@@ -79,3 +82,30 @@ def test_a_true_gain_keeps_its_name_beside_the_spring_it_is_asked_against(arm):
     assert not any("joint_spring" in u for u in result["unexplained"])
     assert result["effects"][0]["parameters"][spec.muscles[0]]["gain"] == pytest.approx(
         0.15, abs=0.02)
+
+
+@pytest.mark.parametrize(("link", "alike"), [("link1", True), ("link2", False)])
+def test_a_mass_a_spring_only_matches_keeps_its_name_and_the_spring_is_said(arm, link, alike):
+    """A heavier first link moves the first joint's torque by a sine of its angle, which a
+    spring follows nearly as well over the few poses of a narrow session: the mass stays
+    named (a spring does not take a name it only matches) and the spring is said beside
+    it. A heavier second link loads both joints, which no spring at one joint follows."""
+    import benchmarks.population_diagnosis as bench
+
+    spec, root, _ = arm
+    plan = bench.narrow_plan({"description": spec.description, "seed": SEED}, root)
+    n, paths = len(plan.poses), []
+    for name, kwargs in (("narrow-ref", {"noise_seed": SEED + 7}),
+                         ("narrow-heavy", {"effects": (Effect("link_mass", 1.5, link=link),)})):
+        data, meta = simulate(spec.load(), n, "al", seed=SEED, poses=plan, **kwargs)
+        paths.append(root / f"{name}-{link}.parquet")
+        write_recording(paths[-1], data, meta)
+    result, _ = diagnose(paths[1], paths[0], robot=spec.description, design_poses=0)
+    assert [e["name"] for e in result["effects"]] == ["link_mass"]
+    note = result["effects"][0].get("spring_fits_alike")
+    assert bool(note) == alike
+    if alike:
+        assert note["joint"] == spec.joints[0] and note["rate_Nm_per_rad"] > 0
+        # beside the spring, the mass adds less than naming asks of one parameter
+        assert note["likelihood_ratio_of_effect_given_spring"] < chi2.isf(P_VALUE, 1)
+        assert "fits about as well" in text_report(result)

@@ -9,6 +9,7 @@ from pimbs_learn.diagnosis.confound import (
     MAX_INFLATION,
     PER_MUSCLE,
     RIDGE_SHARE,
+    Rival,
     Verdict,
 )
 from pimbs_learn.diagnosis.detect import detectable_text
@@ -217,29 +218,37 @@ def factor_entry(verdict: Verdict, muscles: list[str]) -> dict:
             "candidates": [effect, "body_schema"]}
 
 
+def spring_fit(spring: Rival, joints: list[str]) -> dict:
+    """A passive joint spring fitted in a name's place (``confound.outside_rival``)."""
+    fit = spring.fit
+    rate, torque = (float(fit.params[fit.units.index(u)]) for u in spring.units)
+    return {"joint": joints[spring.units[0].index], "rate_Nm_per_rad": rate,
+            "rate_se": _se(fit, fit.units.index(spring.units[0])),
+            "rest_angle_rad": -torque / rate, "likelihood_ratio": spring.lr,
+            "delta_bic": float(spring.delta_bic),
+            "likelihood_ratio_of_effect_given_spring": spring.lr_named_given}
+
+
+def _spring_words(s: dict) -> str:
+    return (f"a passive spring at {s['joint']} ({s['rate_Nm_per_rad']:.3g} N·m/rad"
+            + (f" ± {s['rate_se']:.2g}" if s["rate_se"] else "")
+            + f" pulling toward {s['rest_angle_rad']:.3g} rad)")
+
+
 def spring_entry(verdict: Verdict, joints: list[str], muscles: list[str]) -> dict:
     """An effect a passive joint spring explains clearly better (``confound.outside_rival``):
     the spring is outside the effects named here, so the mismatch is reported with it, and
     neither is named."""
-    a, spring = verdict.named, verdict.outside
-    fit = spring.fit
-    joint = joints[spring.units[0].index]
-    rate, torque = (float(fit.params[fit.units.index(u)]) for u in spring.units)
-    se = _se(fit, fit.units.index(spring.units[0]))
+    a = verdict.named
+    spring = spring_fit(verdict.outside, joints)
     on = sorted({muscles[u.index] for u in a.units if u.index >= 0}
                 ) if a.effect in PER_MUSCLE else []
-    return {"why": (f"{a.effect}{' on ' + ', '.join(on) if on else ''} fits, but a passive "
-                    f"spring at {joint} fits clearly better ({rate:.3g} N·m/rad"
-                    + (f" ± {se:.2g}" if se else "") + f" pulling toward {-torque / rate:.3g} "
-                    f"rad; ΔBIC {spring.delta_bic:.0f} against {verdict.delta_bic:.0f}) and "
-                    "leaves nothing for it: a joint spring (a cover, cables, a joint's stop) "
-                    "is not among the effects named here"),
-            "joint_spring": {"joint": joint, "rate_Nm_per_rad": rate,
-                             "rate_se": se, "rest_angle_rad": -torque / rate,
-                             "likelihood_ratio": spring.lr, "delta_bic": spring.delta_bic,
-                             "likelihood_ratio_of_effect_given_spring":
-                                 spring.lr_named_given},
-            "instead_of": a.effect}
+    return {"why": (f"{a.effect}{' on ' + ', '.join(on) if on else ''} fits, but "
+                    f"{_spring_words(spring)} fits clearly better (ΔBIC "
+                    f"{spring['delta_bic']:.0f} against {verdict.delta_bic:.0f}) and leaves "
+                    "nothing for it: a joint spring (a cover, cables, a joint's stop) is not "
+                    "among the effects named here"),
+            "joint_spring": spring, "instead_of": a.effect}
 
 
 def rest_entry(residual: dict) -> dict | None:
@@ -392,6 +401,10 @@ def text_report(result: dict) -> str:
             lines.append(f"  {i}. {e['name']} ({who})  ΔBIC {ev['delta_bic']:.0f}, "
                          f"p {ev['p_value']:.1e}, held-out gain {100 * ev['cv_gain']:.0f} %")
             lines += _parameter_lines(e["parameters"])
+            if e.get("spring_fits_alike"):
+                lines.append(f"       {_spring_words(e['spring_fits_alike'])} fits about as "
+                             "well; a joint spring is not among the effects named here, and "
+                             "this recording does not tell it from this one")
     more = ambiguity_text(result)
     if more:
         lines += [""] + more[:-1]

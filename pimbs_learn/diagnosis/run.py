@@ -29,6 +29,7 @@ from pimbs_learn.diagnosis.report import (
     factor_entry,
     rest_entry,
     spring_entry,
+    spring_fit,
     unexplained,
 )
 from pimbs_learn.diagnosis.select import select_effects
@@ -128,8 +129,10 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     r_len, r_tau = evaluate(physics, null, data, key="full")
     location = locate(physics, null, data, r_len, r_tau, paired.joints, paired.muscles,
                       paired.reference)
-    entries = [effect_entry(cand, physics, data, paired.joints, paired.muscles, final)
-               for cand in sure]
+    entries = [effect_entry(v.named, physics, data, paired.joints, paired.muscles, final)
+               | ({"spring_fits_alike": spring_fit(v.spring_alike, paired.joints)}
+                  if v.spring_alike else {})
+               for v in verdicts if v.identified]
     ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
                  for v in unsure]
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
