@@ -32,10 +32,11 @@ from pimbs_cli.common import (
 @click.option("--conceal", multiple=True, metavar="EFFECT[:PARAMS]",
               help="write a 'real' recording with this effect present but unlabelled: "
                    "tendon_friction, link_mass, tension_offset, tension_gain, thermal_drift, "
-                   "elastic_stiffness, joint_offset, routing (repeatable), e.g. "
-                   "tendon_friction:0.2 or tension_offset:15,muscles=m1; aliases: "
+                   "elastic_stiffness, joint_offset, routing, joint_spring (repeatable), "
+                   "e.g. tendon_friction:0.2, tension_offset:15,muscles=m1 or "
+                   "joint_spring:1.5,joints=j1,rest=0.2 (N·m/rad toward 0.2 rad); aliases: "
                    "friction, mass, offset, loadcell_offset, gain, loadcell_gain, drift, "
-                   "stiffness, encoder_offset")
+                   "stiffness, encoder_offset, spring")
 @click.option("--noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="sensor noise scale (0: exact data)")
 @click.option("--poses-file", type=click.Path(dir_okay=False, path_type=Path),

@@ -4,8 +4,9 @@ Used to make "real" data in which an effect is present but labelled nowhere: by
 ``pimbs simulate --conceal`` and by the simulated boards of the mock bus. Each effect acts
 at the place it acts on a real robot:
 
-* on the **physics** of the arm (``link_mass``, ``elastic_stiffness``, ``routing``): the true
-  arm differs from the model in mass, stiffness or tendon path;
+* on the **physics** of the arm (``link_mass``, ``elastic_stiffness``, ``routing``,
+  ``joint_spring``): the true arm differs from the model in mass, stiffness or tendon path,
+  or a passive spring (a cover, cables, a joint's stop) pulls a joint toward one angle;
 * on the **pose** (``joint_offset``): the joint encoder's zero is off, so the controller
   puts the arm at ``θ_cmd − δ`` while the encoder reports ``θ_cmd``;
 * on the **tension reading** (``tendon_friction``, ``tension_gain``, ``tension_offset``,
@@ -18,7 +19,9 @@ Specs are text, ``NAME[:PARAMS]``: ``tendon_friction:0.2``,
 ``tension_offset:15,muscles=m1``, ``tension_gain:0.15,muscles=m2`` (reads 15 % high),
 ``link_mass:1.4,link=forearm`` (mass scale),
 ``joint_offset:0.05,joints=elbow_pitch``, ``thermal_drift:0.8`` (N/°C),
-``elastic_stiffness:0.6`` (K scale), ``routing:0.003`` (m, random via-point shifts; the
+``elastic_stiffness:0.6`` (K scale), ``joint_spring:1.5,joints=elbow,rest=0.2`` (N·m/rad,
+pulling toward 0.2 rad; outside what the diagnosis names), ``routing:0.003`` (m, random
+via-point shifts; the
 nuisance a body schema learns, not a diagnosis target). The shifts are drawn from the run's
 seed unless the spec names its own, ``routing:0.004,seed=3``: one arm, whatever poses a
 collection draws (a schema learned on one collection is used on another).
@@ -37,15 +40,16 @@ from pimbs_arm.model import ArmModel
 
 # Vocabulary shared with the diagnosis report; aliases accepted on the command line.
 EFFECT_NAMES = ("tendon_friction", "link_mass", "tension_offset", "tension_gain",
-                "thermal_drift", "elastic_stiffness", "joint_offset", "routing")
+                "thermal_drift", "elastic_stiffness", "joint_offset", "routing", "joint_spring")
 ALIASES = {"friction": "tendon_friction", "mass": "link_mass", "offset": "tension_offset",
            "loadcell_offset": "tension_offset", "drift": "thermal_drift",
            "gain": "tension_gain", "loadcell_gain": "tension_gain",
-           "stiffness": "elastic_stiffness", "encoder_offset": "joint_offset"}
+           "stiffness": "elastic_stiffness", "encoder_offset": "joint_offset",
+           "spring": "joint_spring"}
 DEFAULT_MAGNITUDE = {"tendon_friction": 0.15, "link_mass": 1.3, "tension_offset": 15.0,
                      "tension_gain": 0.15,
                      "thermal_drift": 0.8, "elastic_stiffness": 0.6, "joint_offset": 0.04,
-                     "routing": 0.002}
+                     "routing": 0.002, "joint_spring": 1.0}
 T_REF = 25.0  # °C at which loadcells are calibrated
 # magnitude -> (what it is, lowest, highest, lowest excluded): physical and simulable values
 MAGNITUDE_RANGE = {
@@ -57,6 +61,7 @@ MAGNITUDE_RANGE = {
     "elastic_stiffness": ("stiffness scale K_true/K_model", 0.0, 10.0, True),
     "joint_offset": ("joint zero offset [rad]", -0.5, 0.5, False),
     "routing": ("via-point shift [m]", 0.0, 0.02, False),
+    "joint_spring": ("passive joint spring rate [N*m/rad]", 0.0, 1000.0, True),
 }
 
 
@@ -93,6 +98,10 @@ class Effect:
             rng = np.random.default_rng([self.seed, 77])
             return _with_via_point_shifts(arm, rng.normal(0.0, self.magnitude,
                                                           arm.backend._via_local.shape))
+        if self.name == "joint_spring":
+            rate = self.at_joints(arm)
+            rest = np.where(rate != 0, float(self.extra.get("rest", 0.0)), 0.0)
+            return arm.with_backend(SprungBackend(arm.backend, rate, rest))
         return arm
 
     def _mjcf_physics(self, arm: ArmModel) -> ArmModel:
@@ -114,7 +123,7 @@ class Effect:
         """Where the arm really is when the (possibly offset) joint sensor says θ_cmd."""
         if self.name != "joint_offset":
             return theta_cmd
-        return theta_cmd - self.joint_offsets(arm)
+        return theta_cmd - self.at_joints(arm)
 
     def read_tension(self, arm: ArmModel, tension: np.ndarray, approach: np.ndarray,
                      temperature: np.ndarray) -> np.ndarray:
@@ -132,7 +141,9 @@ class Effect:
         return out
 
     # -- helpers ------------------------------------------------------------------------
-    def joint_offsets(self, arm: ArmModel) -> np.ndarray:
+    def at_joints(self, arm: ArmModel) -> np.ndarray:
+        """(N,) the magnitude at the named joints (the first joint when none is named), zero
+        elsewhere: a joint offset's δ, a joint spring's rate."""
         delta = np.zeros(arm.n_joints)
         names = self.joints or (arm.joints[0],)
         for name in names:
@@ -155,6 +166,8 @@ class Effect:
             parts.append("joints=" + "+".join(self.joints))
         if self.link:
             parts.append(f"link={self.link}")
+        if "rest" in self.extra:
+            parts.append(f"rest={self.extra['rest']:g}")
         return ",".join(parts)
 
 
@@ -183,6 +196,31 @@ def _with_link_mass(arm: ArmModel, link: str, scale: float) -> ArmModel:
                               f"{arm.robot.urdf_path.name}")
     model.inertias[joint] = pin.Inertia(body.mass * scale, body.lever, body.inertia * scale)
     return arm.with_backend(arm.backend.fresh(model=model))
+
+
+class SprungBackend:
+    """An arm backend with a passive spring at some joints: the muscles also hold
+    ``rate·(θ − rest)``, as MuJoCo's joint ``stiffness`` and ``springref`` pull. Everything
+    else is the wrapped backend's."""
+
+    def __init__(self, inner, rate: np.ndarray, rest: np.ndarray):
+        self._inner = inner
+        self._rate, self._rest = np.asarray(rate, float), np.asarray(rest, float)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):  # copies and pickles look these up before __init__ ran
+            raise AttributeError(name)
+        return getattr(self.__dict__["_inner"], name)
+
+    def gravity(self, theta: np.ndarray) -> np.ndarray:
+        return self._inner.gravity(theta) + self._rate * (np.asarray(theta) - self._rest)
+
+    def gravity_derivative(self, theta: np.ndarray) -> np.ndarray:
+        return self._inner.gravity_derivative(theta) + np.diag(self._rate)
+
+    def potential_energy(self, theta: np.ndarray) -> float:
+        stretch = np.asarray(theta) - self._rest
+        return self._inner.potential_energy(theta) + 0.5 * float(self._rate @ stretch**2)
 
 
 def _with_via_point_shifts(arm: ArmModel, shifts: np.ndarray) -> ArmModel:
@@ -220,6 +258,8 @@ def parse_effect(spec: str, seed: int = 0) -> Effect:
                 effect.link = value
             elif key == "seed":  # which arm: the same routing for every pose sequence
                 effect.seed = int(value)
+            elif key == "rest" and name == "joint_spring":  # rad: the angle it pulls toward
+                effect.extra["rest"] = float(value)
             elif key in ("magnitude", "value", "mu", "scale", "offset", "coef", "gain"):
                 effect.magnitude = float(value)
             else:
@@ -263,7 +303,7 @@ class World:
         for effect in self.effects:
             effect._muscle_mask(self.model)  # validate names early
             if effect.name == "joint_offset":
-                effect.joint_offsets(self.model)
+                effect.at_joints(self.model)
             arm = effect.physics(arm)
         self.arm = arm
 

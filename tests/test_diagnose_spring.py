@@ -1,5 +1,5 @@
 """A joint spring is not among the effects the diagnosis names: what it explains is not
-given another name.
+given another name, and PIMBS's simulator holds one as MuJoCo does.
 
 MuJoCo is the plant (its own joint ``stiffness`` and ``springref``), PIMBS's simulator the
 reference, and the diagnosis gets the robot description, which has no spring: a cover or
@@ -9,6 +9,7 @@ drawn from seed 11 (two joints, six muscles) is small enough to record in second
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from scipy.stats import chi2
 
@@ -19,7 +20,7 @@ from pimbs_learn.diagnosis.run import diagnose
 from pimbs_learn.diagnosis.select import P_VALUE
 from pimbs_recording.format import write_recording
 from pimbs_sim.conditions import write_plant
-from pimbs_sim.effects import Effect
+from pimbs_sim.effects import Effect, parse_effect
 from pimbs_sim.population import make_arm
 from pimbs_sim.simulate import simulate
 
@@ -36,6 +37,41 @@ def arm(tmp_path_factory):
     # a rate that moves the first joint's torque as much as gravity does over its range
     rate = spec.params["gravity_bound"][0] / spec.params["joints"][0]["half_range"]
     return spec, root, rate
+
+
+def test_pimbs_simulator_holds_a_joint_spring_as_mujoco_pulls_one(arm):
+    """The torque the muscles hold on PIMBS's simulator with ``joint_spring`` concealed is
+    MuJoCo's own on the plant file with that joint's ``stiffness`` and ``springref``:
+    gravity (``qfrc_bias`` at rest) less the spring's pull (``qfrc_passive``)."""
+    import mujoco
+
+    spec, root, rate = arm
+    plant = write_plant(spec.mjcf, ({"name": "plant_joint_stiffness", "magnitude": rate,
+                                     "joints": [spec.joints[0]], "springref": REST},),
+                        root / "sprung-oracle.xml")
+    model = mujoco.MjModel.from_xml_path(str(plant))
+    data = mujoco.MjData(model)
+    joints = [model.joint(name) for name in spec.joints]
+    described = spec.load()
+    sprung = parse_effect(f"joint_spring:{rate},joints={spec.joints[0]},rest={REST}"
+                          ).physics(described)
+    rng = np.random.default_rng(0)
+    lo, hi = described.joint_range[:, 0], described.joint_range[:, 1]
+    for theta in rng.uniform(lo, hi, (5, len(joints))):
+        data.qpos[:] = 0.0
+        for j, q in zip(joints, theta, strict=True):
+            data.qpos[j.qposadr[0]] = q
+        mujoco.mj_forward(model, data)
+        held = np.array([data.qfrc_bias[j.dofadr[0]] - data.qfrc_passive[j.dofadr[0]]
+                         for j in joints])
+        # the plant file keeps 6 digits of the rate and the rest angle
+        np.testing.assert_allclose(sprung.gravity_torque(theta), held, rtol=1e-5, atol=1e-7)
+        step = np.zeros(len(joints))
+        step[0] = 1e-6  # the energy the equilibrium descends is the spring's too
+        slope = (sprung.potential_energy(theta + step)
+                 - sprung.potential_energy(theta - step)) / 2e-6
+        assert slope == pytest.approx(held[0], rel=1e-4, abs=1e-6)
+    assert described.gravity_torque(theta)[0] != pytest.approx(held[0], rel=1e-3)
 
 
 def _record(spec, root, name: str, plant, effects=()):
@@ -89,23 +125,42 @@ def test_a_mass_a_spring_only_matches_keeps_its_name_and_the_spring_is_said(arm,
     """A heavier first link moves the first joint's torque by a sine of its angle, which a
     spring follows nearly as well over the few poses of a narrow session: the mass stays
     named (a spring does not take a name it only matches) and the spring is said beside
-    it. A heavier second link loads both joints, which no spring at one joint follows."""
+    it, with the poses that would tell the two apart; collected, they do. A heavier second
+    link loads both joints, which no spring at one joint follows."""
     import benchmarks.population_diagnosis as bench
+    from pimbs_arm.poses_file import read_pose_plan
+    from pimbs_learn.diagnosis.design import design_csv
 
     spec, root, _ = arm
+    heavy = (Effect("link_mass", 1.5, link=link),)
+
+    def session(name: str, plan, map_kind: str):
+        paths = []
+        for kind, kwargs in (("ref", {"noise_seed": SEED + 7}), ("real", {"effects": heavy})):
+            data, meta = simulate(spec.load(), len(plan.poses), map_kind, seed=SEED,
+                                  poses=plan, **kwargs)
+            paths.append(root / f"{name}-{link}.{kind}.parquet")
+            write_recording(paths[-1], data, meta)
+        return paths[1], paths[0]
+
     plan = bench.narrow_plan({"description": spec.description, "seed": SEED}, root)
-    n, paths = len(plan.poses), []
-    for name, kwargs in (("narrow-ref", {"noise_seed": SEED + 7}),
-                         ("narrow-heavy", {"effects": (Effect("link_mass", 1.5, link=link),)})):
-        data, meta = simulate(spec.load(), n, "al", seed=SEED, poses=plan, **kwargs)
-        paths.append(root / f"{name}-{link}.parquet")
-        write_recording(paths[-1], data, meta)
-    result, _ = diagnose(paths[1], paths[0], robot=spec.description, design_poses=0)
+    real, ref = session("narrow", plan, "al")
+    result, _ = diagnose(real, ref, robot=spec.description)
     assert [e["name"] for e in result["effects"]] == ["link_mass"]
     note = result["effects"][0].get("spring_fits_alike")
     assert bool(note) == alike
-    if alike:
-        assert note["joint"] == spec.joints[0] and note["rate_Nm_per_rad"] > 0
-        # beside the spring, the mass adds less than naming asks of one parameter
-        assert note["likelihood_ratio_of_effect_given_spring"] < chi2.isf(P_VALUE, 1)
-        assert "fits about as well" in text_report(result)
+    if not alike:
+        return
+    assert note["joint"] == spec.joints[0] and note["rate_Nm_per_rad"] > 0
+    # beside the spring, the mass adds less than naming asks of one parameter
+    assert note["likelihood_ratio_of_effect_given_spring"] < chi2.isf(P_VALUE, 1)
+    assert note["separating_poses"]["between"] == ["link_mass", "joint_spring"]
+    assert "fits about as well" in text_report(result)
+    csv, count = design_csv(result)  # what --poses-out writes
+    assert count == len(note["separating_poses"]["poses"]) == 30
+    (root / f"poses-{link}.csv").write_text(csv)
+    real2, ref2 = session("designed", read_pose_plan(root / f"poses-{link}.csv",
+                                                      spec.load()), "atl")
+    both, _ = diagnose([real, real2], [ref, ref2], robot=spec.description, design_poses=0)
+    assert [e["name"] for e in both["effects"]] == ["link_mass"]
+    assert not both["effects"][0].get("spring_fits_alike")  # told apart

@@ -160,7 +160,7 @@ def _split_effects(arm: ArmModel, effects: tuple[Effect, ...]
         if e.name == "elastic_stiffness":
             plant_arm = e.physics(plant_arm)
         elif e.name == "joint_offset":
-            offset = offset + e.joint_offsets(arm)
+            offset = offset + e.at_joints(arm)
         elif e.name in READING_EFFECTS:
             reading.append(e)
         else:

@@ -44,6 +44,7 @@ from pimbs_learn.diagnosis.confound import Verdict
 from pimbs_learn.diagnosis.inputs import BRANCH_DEADBAND, stretch_weights
 from pimbs_learn.diagnosis.model import (
     SENSOR,
+    SPRING,
     Fit,
     Physics,
     Samples,
@@ -109,7 +110,7 @@ def pool_within(arm: ArmModel, theta: np.ndarray, n: int = POOL, seed: int = POO
 
 # the order :func:`concealed` conceals the rest in (a link-mass change comes first, from
 # :func:`link_masses`)
-ORDER = ("elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
+ORDER = (SPRING, "elastic_stiffness", "joint_offset", "tendon_friction", "tension_gain",
          "tension_offset", "thermal_drift")
 
 
@@ -151,10 +152,17 @@ def concealed(units: list[Unit], params: np.ndarray, arm: ArmModel,
     out = list(masses)
     fitted = [(u, p) for u, p in zip(units, params, strict=True)
               if u.effect not in (*SENSOR, "link_mass")]
+    value = {u: float(p) for u, p in fitted}
     for u, p in sorted(fitted, key=lambda x: ORDER.index(x[0].effect)):
         p = float(p)
         muscles = () if u.part == "common" else (arm.muscles[u.index],)
-        if u.effect == "elastic_stiffness":
+        if u.effect == SPRING and u.part == "rate":  # the muscles hold rate·θ + torque
+            torque = value.get(Unit(SPRING, u.index, "torque"), 0.0)
+            out.append(Effect(SPRING, p, joints=(arm.joints[u.index],),
+                              extra={"rest": -torque / p}))
+        elif u.effect == SPRING:
+            continue  # the spring's torque at zero: its rest angle, above
+        elif u.effect == "elastic_stiffness":
             out.append(Effect("elastic_stiffness", 1.0 / max(1.0 + p, 1e-3), muscles=muscles))
         elif u.effect == "joint_offset":
             out.append(Effect("joint_offset", p, joints=(arm.joints[u.index],)))
@@ -418,9 +426,12 @@ def unseen_poses(arm: ArmModel, physics: Physics, data: Samples, k: int,
 
 def design_csv(result: dict) -> tuple[str, int]:
     """One poses file for every ambiguity of a diagnosis, every name that rests on guessed
-    loadcell branches or on a factor no arm has, and a rest asked where the recording has
-    not been (one session settles them all), and how many poses it holds."""
-    entries = [*result.get("ambiguous", []), *result.get("unexplained", [])]
+    loadcell branches or on a factor no arm has, a name a joint spring fits as well, and a
+    rest asked where the recording has not been (one session settles them all), and how
+    many poses it holds."""
+    entries = [*result.get("ambiguous", []), *result.get("unexplained", []),
+               *(e["spring_fits_alike"] for e in result.get("effects", [])
+                 if e.get("spring_fits_alike"))]
     rows = [a["separating_poses"]["csv"].splitlines() for a in entries
             if a.get("separating_poses")]
     if not rows:

@@ -401,10 +401,18 @@ def text_report(result: dict) -> str:
             lines.append(f"  {i}. {e['name']} ({who})  ΔBIC {ev['delta_bic']:.0f}, "
                          f"p {ev['p_value']:.1e}, held-out gain {100 * ev['cv_gain']:.0f} %")
             lines += _parameter_lines(e["parameters"])
-            if e.get("spring_fits_alike"):
-                lines.append(f"       {_spring_words(e['spring_fits_alike'])} fits about as "
-                             "well; a joint spring is not among the effects named here, and "
-                             "this recording does not tell it from this one")
+            alike = e.get("spring_fits_alike")
+            if alike:
+                lines.append(f"       {_spring_words(alike)} fits about as well; a joint "
+                             "spring is not among the effects named here, and this recording "
+                             "does not tell it from this one")
+                poses = alike.get("separating_poses")
+                if poses:
+                    lines.append(f"       {len(poses['poses'])} poses would tell them apart "
+                                 "(expected likelihood ratio "
+                                 f"{poses['expected_likelihood_ratio']:.0f}): collect them "
+                                 "with `pimbs collect --poses-file FILE` (written by "
+                                 "--poses-out) and diagnose both recordings together")
     more = ambiguity_text(result)
     if more:
         lines += [""] + more[:-1]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +162,14 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         if rest and not any(e.get("separating_poses") for e in
                             (*ambiguous, *guessed_entries, *factor_entries)):
             _propose(rest, unseen_poses, arm, physics, data, design_poses, noise)
+        # a name a joint spring fits about as well is named: its question is asked only
+        # where nothing above asks for a session
+        if not any(e.get("separating_poses") for e in
+                   (*ambiguous, *guessed_entries, *factor_entries, *([rest] if rest else []))):
+            for v, entry in zip([v for v in verdicts if v.identified], entries, strict=True):
+                if v.spring_alike is not None:
+                    _propose(entry["spring_fits_alike"], separating_poses, arm, physics, data,
+                             replace(v, rivals=[v.spring_alike]), design_poses, noise)
     sources = [str(r.path) for r in reals]
     result = {
         "real": sources[0], "reference": str(refs[0].path) if refs else None,

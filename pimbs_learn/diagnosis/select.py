@@ -31,6 +31,7 @@ from scipy.stats import chi2
 from pimbs_learn.diagnosis.fit import _whiten, cross_validate, fit_effects, log_lik_at
 from pimbs_learn.diagnosis.model import (
     EFFECTS,
+    SPRING,
     Fit,
     Physics,
     Samples,
@@ -51,7 +52,8 @@ UNIT_Z = float(np.sqrt(chi2.isf(P_VALUE, 1)))  # a muscle/joint's own parameter:
 MAX_GROUPS = {"link_mass": 1}
 FD_STEP = {"tension_offset": 1e-2, "tension_gain": 1e-4, "thermal_drift": 1e-3,
            "tendon_friction": 1e-4, "elastic_stiffness": 1e-4, "joint_offset": 1e-6,
-           "link_mass": 1e-4, "sensor_lag": 1e-4, "loadcell_hysteresis": 1e-2}
+           "link_mass": 1e-4, "sensor_lag": 1e-4, "loadcell_hysteresis": 1e-2,
+           SPRING: 1e-3}
 
 
 @dataclass
