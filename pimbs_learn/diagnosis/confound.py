@@ -271,6 +271,7 @@ def branch_bound(physics: Physics, data: Samples, final: Fit, named: Candidate) 
 
 
 def spring_units(joint: int) -> list[Unit]:
+    """A spring at ``joint``: its rate and its torque at the description's zero."""
     return [Unit(SPRING, joint, "rate"), Unit(SPRING, joint, "torque")]
 
 
@@ -324,7 +325,9 @@ def outside_rival(physics: Physics, data: Samples, final: Fit, without: Fit, nam
 # joint's torque by a sine of its angle, which a spring follows nearly as well over a
 # joint's range (on drawn arms: likelihood ratios of 549.5 against 550.0, 194.5 against
 # 191.1): outside the vocabulary, a spring does not take a name it only matches; the name
-# is kept and the spring said beside it (``Verdict.spring_alike``).
+# is kept and the spring said beside it (``Verdict.spring_alike``). The margin's cost, as
+# judged: a heavier second link on PIMBS's simulator, which has no springs, was taken by a
+# spring 25 ahead (docs/diagnosis-notebook.md).
 SPRING_MARGIN = float(chi2.isf(P_VALUE, 1))
 
 
