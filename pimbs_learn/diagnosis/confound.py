@@ -340,11 +340,12 @@ def springs_in_place(physics: Physics, data: Samples, final: Fit, verdicts: list
         return final
     gone = {u for v in sprung for u in v.named.units}
     keep = [u for u in final.units if u not in gone]
-    springs = list(dict.fromkeys(u for v in sprung for u in v.outside.units))
-    x0 = np.concatenate([_sub(final, keep),
-                         [next(v.outside.fit.params[v.outside.fit.units.index(u)]
-                               for v in sprung if u in v.outside.units) for u in springs]])
-    return fit_effects(physics, data, [*keep, *springs], x0=x0, key="full")
+    start: dict[Unit, float] = {}  # each spring from the first fit that had it
+    for v in sprung:
+        for u, p in zip(v.outside.units, _sub(v.outside.fit, v.outside.units), strict=True):
+            start.setdefault(u, p)
+    return fit_effects(physics, data, [*keep, *start], key="full",
+                       x0=np.concatenate([_sub(final, keep), list(start.values())]))
 
 
 def judge(physics: Physics, data: Samples, final: Fit, named: Candidate,

@@ -186,14 +186,19 @@ def disputed_entry(verdict: Verdict, recordings: list[str]) -> dict:
                 for effect, units, per in verdict.contradictions]}
 
 
+def _on_muscles(named: Candidate, muscles: list[str]) -> str:
+    """The muscles of an effect that acts per loadcell, as words (" on m1, m2"; "" else)."""
+    on = sorted({muscles[u.index] for u in named.units if u.index >= 0}
+                ) if named.effect in PER_MUSCLE else []
+    return " on " + ", ".join(on) if on else ""
+
+
 def branch_entry(verdict: Verdict, muscles: list[str], final: Fit) -> dict:
     """An effect that fits only with loadcell branches the readings cannot tell
     (``confound.branch_bound``): the mismatch is reported, not the name."""
     h = hysteresis(final)
     effect = verdict.named.effect
-    on = sorted({muscles[u.index] for u in verdict.named.units if u.index >= 0}
-                ) if effect in PER_MUSCLE else []
-    return {"why": (f"{effect}{' on ' + ', '.join(on) if on else ''} fits only where the "
+    return {"why": (f"{effect}{_on_muscles(verdict.named, muscles)} fits only where the "
                     "loadcells' branches are guessed (readings that moved less than their "
                     f"{h:.2f} N hysteresis can hide), and hysteresis on a wrong guess looks "
                     "like it; poses that load and unload each wire by several newtons "
@@ -241,9 +246,7 @@ def spring_entry(verdict: Verdict, joints: list[str], muscles: list[str]) -> dic
     neither is named."""
     a = verdict.named
     spring = spring_fit(verdict.outside, joints)
-    on = sorted({muscles[u.index] for u in a.units if u.index >= 0}
-                ) if a.effect in PER_MUSCLE else []
-    return {"why": (f"{a.effect}{' on ' + ', '.join(on) if on else ''} fits, but "
+    return {"why": (f"{a.effect}{_on_muscles(a, muscles)} fits, but "
                     f"{_spring_words(spring)} fits clearly better (ΔBIC "
                     f"{spring['delta_bic']:.0f} against {verdict.delta_bic:.0f}) and leaves "
                     "nothing for it: a joint spring (a cover, cables, a joint's stop) is not "

@@ -115,14 +115,15 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
                                x0=final.params) if named else cv_null)
     # each named effect against its confounders: the others refitted in its place
     verdicts = [judge(physics, data, final, cand, effects) for cand in named]
-    sure = [v.named for v in verdicts if v.identified]
+    named_ok = [v for v in verdicts if v.identified]
+    sure = [v.named for v in named_ok]
     unsure = [v for v in verdicts if v.rivals and not v.contradictions]
     disputed = [v for v in verdicts if v.contradictions]
     guessed = [v for v in verdicts if v.branch_bound]
     impossible = [v for v in verdicts if v.impossible]
     sprung = [v for v in verdicts if v.outside is not None]
     corrected = final
-    if unsure or disputed or guessed or impossible or sprung:  # --corrected undoes the identified
+    if len(named_ok) < len(verdicts):  # --corrected undoes the identified
         units = [*null.units, *(u for c in sure for u in c.units)]
         corrected = fit_effects(physics, data, units, key="full", x0=np.array(
             [final.params[final.units.index(u)] for u in units]))
@@ -133,7 +134,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
     entries = [effect_entry(v.named, physics, data, paired.joints, paired.muscles, final)
                | ({"spring_fits_alike": spring_fit(v.spring_alike, paired.joints)}
                   if v.spring_alike else {})
-               for v in verdicts if v.identified]
+               for v in named_ok]
     ambiguous = [ambiguity_entry(v, physics, data, paired.joints, paired.muscles, final)
                  for v in unsure]
     guessed_entries = [branch_entry(v, paired.muscles, final) for v in guessed]
@@ -166,7 +167,7 @@ def diagnose(real: Source | list[Source], reference: Source | list[Source] | Non
         # where nothing above asks for a session
         if not any(e.get("separating_poses") for e in
                    (*ambiguous, *guessed_entries, *factor_entries, *([rest] if rest else []))):
-            for v, entry in zip([v for v in verdicts if v.identified], entries, strict=True):
+            for v, entry in zip(named_ok, entries, strict=True):
                 if v.spring_alike is not None:
                     _propose(entry["spring_fits_alike"], separating_poses, arm, physics, data,
                              replace(v, rivals=[v.spring_alike]), design_poses, noise)
